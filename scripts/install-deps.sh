@@ -1,0 +1,18 @@
+#!/usr/bin/env bash
+# Installs, from Debian's packages, whatever partloc needs to build and test and is not yet on the machine.
+set -euo pipefail
+pkgs=(cmake g++ make pkg-config
+      libopen3d-dev libembree-dev libeigen3-dev libyaml-cpp-dev nlohmann-json3-dev libcli11-dev
+      libtbb-dev libgtest-dev libgmock-dev libbenchmark-dev)
+[[ "${PARTLOC_WITH_PCL:-0}" == 1 ]] && pkgs+=(libpcl-dev)
+missing=()
+for p in "${pkgs[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+((${#missing[@]})) || exit 0
+echo "installing: ${missing[*]}"
+SUDO=""
+[[ $(id -u) -ne 0 ]] && SUDO="sudo"
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -q
+$SUDO apt-get install -y -q --no-install-recommends "${missing[@]}"

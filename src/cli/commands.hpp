@@ -1,0 +1,18 @@
+#pragma once
+// The subcommands of build/partloc (SPEC "Commands"). Each returns the process exit code.
+#include <cstdint>
+#include <string>
+
+namespace partloc::cli {
+
+/// `partloc run JOB --out DIR`: 0 located, 2 bad input, 3 not located.
+int command_run(const std::string& job_file, const std::string& out_dir, int threads, std::uint64_t seed);
+
+/// `partloc demo [--out DIR]`: the paper's experiment re-created in the virtual cell; prints the table of
+/// true vs located poses. Writes each test's job and results under DIR when given.
+int command_demo(const std::string& out_dir, std::uint64_t seed, int threads);
+
+/// `partloc simulate --out DIR [--seed N]`: writes one virtual job (scans, models, job.yaml, truth.json).
+int command_simulate(const std::string& out_dir, std::uint64_t seed);
+
+}  // namespace partloc::cli

@@ -1,0 +1,40 @@
+// build/partloc: the command line (SPEC "Commands").
+#include <CLI/CLI.hpp>
+#include <iostream>
+
+#include "commands.hpp"
+
+int main(int argc, char** argv) {
+    CLI::App app{"partloc: locate a workpiece in a CNC machine from 3D scans and fiducials"};
+    app.require_subcommand(1);
+
+    std::string job_file, out_dir, demo_out, sim_out;
+    int threads = 0;
+    std::uint64_t seed = 1, demo_seed = 1, sim_seed = 1;
+
+    auto* run = app.add_subcommand("run", "localize each scan, merge, locate the workpiece, write DIR");
+    run->add_option("job", job_file, "job file (YAML or JSON)")->required();
+    run->add_option("--out", out_dir, "output folder")->required();
+    run->add_option("--threads", threads, "worker threads (0: all cores)");
+    run->add_option("--seed", seed, "seed for every random choice");
+
+    auto* demo = app.add_subcommand("demo", "the paper's experiment re-created in a virtual cell");
+    demo->add_option("--out", demo_out, "write each test's job and results here");
+    demo->add_option("--seed", demo_seed, "seed of the virtual scanner");
+    demo->add_option("--threads", threads, "worker threads (0: all cores)");
+
+    auto* simulate = app.add_subcommand("simulate", "write one virtual job with its truth.json");
+    simulate->add_option("--out", sim_out, "output folder")->required();
+    simulate->add_option("--seed", sim_seed, "seed of the virtual cell and scanner");
+
+    try {
+        app.parse(argc, argv);
+    } catch (const CLI::ParseError& e) {
+        const int code = app.exit(e);
+        return code == 0 ? 0 : 2;
+    }
+    if (*run) return partloc::cli::command_run(job_file, out_dir, threads, seed);
+    if (*demo) return partloc::cli::command_demo(demo_out, demo_seed, threads);
+    if (*simulate) return partloc::cli::command_simulate(sim_out, sim_seed);
+    return 2;
+}

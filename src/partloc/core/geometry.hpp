@@ -1,0 +1,41 @@
+#pragma once
+// Frames and transforms, written once (SPEC "Frames and units"):
+//   T_a_b maps coordinates in frame b to frame a:  p_a = T_a_b * p_b.
+//   Frames: machine, scan, fiducial, workpiece. Lengths in the job's units, angles in degrees.
+//   euler_xyz_deg [a, b, c] means R = Rz(c) * Ry(b) * Rx(a).
+#include <Eigen/Geometry>
+#include <string>
+
+namespace partloc {
+
+using Matrix6d = Eigen::Matrix<double, 6, 6>;
+using Vector6d = Eigen::Matrix<double, 6, 1>;
+
+/// R = Rz(c) * Ry(b) * Rx(a) for euler_deg = [a, b, c] in degrees.
+Eigen::Matrix3d rotation_from_euler_xyz_deg(const Eigen::Vector3d& euler_deg);
+
+/// Inverse of rotation_from_euler_xyz_deg; b in [-90, 90], a and c in (-180, 180].
+Eigen::Vector3d euler_xyz_deg(const Eigen::Matrix3d& R);
+
+/// Pose from an origin (job units) and euler_xyz_deg.
+Eigen::Isometry3d pose_from_origin_euler(const Eigen::Vector3d& origin, const Eigen::Vector3d& euler_deg);
+
+/// Checks that M is a rigid transform (orthonormal, det +1, last row 0 0 0 1) within tol; throws
+/// std::invalid_argument naming `what` otherwise. Returns it as an isometry, re-orthonormalised.
+Eigen::Isometry3d checked_isometry(const Eigen::Matrix4d& M, const std::string& what, double tol = 1e-4);
+
+/// Rotation about the unit axis `direction` through `point` by angle_deg (right-hand rule).
+Eigen::Isometry3d rotation_about_line(const Eigen::Vector3d& point, const Eigen::Vector3d& direction,
+                                      double angle_deg);
+
+/// Angle of the rotation R in degrees, in [0, 180].
+double rotation_angle_deg(const Eigen::Matrix3d& R);
+
+/// Difference between two poses: |t_a - t_b| (job units) and the angle of R_a^T R_b (degrees).
+struct PoseError {
+    double translation = 0.0;
+    double rotation_deg = 0.0;
+};
+PoseError pose_error(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b);
+
+}  // namespace partloc

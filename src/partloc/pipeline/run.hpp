@@ -1,0 +1,22 @@
+#pragma once
+// The whole job (paper §3.4): localize each scan by its fiducials (processor), merge the registered scans,
+// fit the nominal reference surfaces (part) and build the stock and the located final part.
+#include <cstdint>
+
+#include "partloc/pipeline/job.hpp"
+#include "partloc/pipeline/result.hpp"
+
+namespace partloc {
+
+struct RunSettings {
+    int threads = 0;         ///< 0: all cores. Results do not depend on it.
+    std::uint64_t seed = 1;  ///< seeds every random choice; same seed, same result
+    bool build_stock = true; ///< triangulate the merged workpiece points into result.stock
+};
+
+/// Runs the job. Never throws for "no solution": a scan that no fiducial fits is rejected with a reason, a
+/// workpiece that cannot be fitted is not located with a reason. Throws std::invalid_argument only for a
+/// job that is inconsistent in itself (an axis named in moves_with that the machine lacks, say).
+JobResult run_job(const Job& job, const RunSettings& settings = {});
+
+}  // namespace partloc

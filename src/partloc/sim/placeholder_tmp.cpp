@@ -1,0 +1,2 @@
+// TEMPORARY: removed when the first sim source lands.
+namespace partloc::sim {}
