@@ -9,23 +9,9 @@
 #include <vector>
 
 #include "partloc/core/geometry.hpp"
+#include "partloc/core/localize.hpp"
 
 namespace partloc {
-
-/// One fiducial tried against one scan (the processor's candidate, paper §3.4.1).
-struct FiducialFit {
-    std::string fiducial;
-    bool accepted = false;
-    std::string reason;  ///< why it was not accepted; empty when accepted
-    Eigen::Isometry3d T_scan_fiducial = Eigen::Isometry3d::Identity();
-    double rmse = 0.0;          ///< RMS point-to-surface distance of the inliers (job units)
-    double coverage = 0.0;      ///< fraction of the model surface facing the scanner that was observed [0, 1]
-    double violation = 0.0;     ///< fraction of nearby scan points seen inside the model's solid [0, 1]
-    double conditioning = 0.0;  ///< smallest eigenvalue of the normalised 6x6 fit information [0, 1]
-    double score = 0.0;         ///< larger is better; 0 when rejected
-    std::size_t inliers = 0;    ///< scan points on the model surface
-    Matrix6d information = Matrix6d::Zero();  ///< of T_scan_fiducial, in (job units)^-2, twist [w, v]
-};
 
 struct ScanResult {
     std::string file;

@@ -1,11 +1,265 @@
 #include "partloc/pipeline/run.hpp"
 
+#include <open3d/geometry/BoundingVolume.h>
+#include <open3d/geometry/KDTreeSearchParam.h>
+#include <tbb/global_control.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <optional>
+#include <stdexcept>
+
+#include "partloc/core/cloud_stats.hpp"
+#include "partloc/core/localize.hpp"
+#include "partloc/core/stock.hpp"
+#include "partloc/core/workpiece_fit.hpp"
+
 namespace partloc {
 
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double seconds_since(Clock::time_point t0) {
+    return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+std::string fmt(const char* f, double a, double b = 0, double c = 0) {
+    char buf[256];
+    std::snprintf(buf, sizeof buf, f, a, b, c);
+    return buf;
+}
+
+Eigen::AlignedBox3d model_box(const ModelSource& m) {
+    Eigen::AlignedBox3d box;
+    if (m.mesh)
+        for (const auto& v : m.mesh->vertices_) box.extend(v);
+    if (m.points)
+        for (const auto& v : m.points->points_) box.extend(v);
+    return box;
+}
+
+double median_of(std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    return v.empty() ? 0.0 : v[v.size() / 2];
+}
+
+/// A fiducial's pose at axis values q (SPEC "Machine axes"): T(q) = M(q) M(q_probed)^-1 T_probed.
+Eigen::Isometry3d fiducial_at(const Machine& machine, const Fiducial& f, const AxisValues& q) {
+    return machine.motion(f.moves_with, q) * machine.motion(f.moves_with, f.probed_at).inverse() *
+           f.T_machine_fiducial;
+}
+
+struct ScanWork {
+    Scale scale;
+    std::shared_ptr<open3d::geometry::PointCloud> workpiece_points;  ///< machine frame, axes 0, with normals
+};
+
+}  // namespace
+
 JobResult run_job(const Job& job, const RunSettings& settings) {
-    JobResult result;  // TEMPORARY stub while the pipeline is being written
+    const auto t0 = Clock::now();
+    std::optional<tbb::global_control> threads;
+    if (settings.threads > 0) threads.emplace(tbb::global_control::max_allowed_parallelism, settings.threads);
+
+    if (job.fiducials.empty()) throw std::invalid_argument("the job has no fiducials");
+    for (const auto& f : job.fiducials) {
+        job.machine.motion(f.moves_with, f.probed_at);  // throws on an unknown axis
+    }
+    job.machine.motion(job.workpiece.moves_with, {});
+
+    JobResult result;
     result.units = job.units;
-    result.workpiece.message = "pipeline not yet implemented";
+    result.scans.resize(job.scans.size());
+    std::vector<ScanWork> work(job.scans.size());
+
+    // Scale of each scan: the scanner's specification where given, else measured on the scan.
+    tbb::parallel_for(std::size_t(0), job.scans.size(), [&](std::size_t i) {
+        const auto& pts = *job.scans[i].points;
+        CloudStats m;
+        if (!job.scanner.point_spacing || !job.scanner.noise) m = measure_cloud(pts, 3000, settings.seed + i);
+        Scale s;
+        s.spacing = job.scanner.point_spacing.value_or(m.spacing);
+        s.noise = job.scanner.noise.value_or(m.noise);
+        // Smoothed or quantised data can report almost no scatter; a floor keeps thresholds sane.
+        s.noise = std::max(s.noise, 0.05 * s.spacing);
+        work[i].scale = s;
+    });
+
+    // One sampling for the global fit, from the fiducials' size (Drost: 0.03-0.05 of the diameter), never
+    // finer than the scans resolve.
+    std::vector<double> diameters, spacings;
+    for (const auto& f : job.fiducials) diameters.push_back(model_box(f.model).diagonal().norm());
+    for (const auto& w : work)
+        if (w.scale.spacing > 0) spacings.push_back(w.scale.spacing);
+    const double spacing = spacings.empty() ? 0.0 : median_of(spacings);
+    const double max_spacing = spacings.empty() ? 0.0 : *std::max_element(spacings.begin(), spacings.end());
+    const double sampling = std::max(0.04 * median_of(diameters), 2.5 * max_spacing);
+
+    std::vector<PreparedModel> models(job.fiducials.size());
+    tbb::parallel_for(std::size_t(0), job.fiducials.size(), [&](std::size_t k) {
+        const auto& f = job.fiducials[k];
+        const double dense = std::max(spacing, diameters[k] / 150.0);
+        models[k] = prepare_model(f.name, f.model.mesh.get(), f.model.points.get(), dense, sampling);
+    });
+
+    // The workpiece region: the crop box, or the nominal reference surfaces and final part with a margin
+    // for the part's uncertain pose.
+    Eigen::AlignedBox3d region;
+    if (job.workpiece.region) {
+        region = *job.workpiece.region;
+    } else {
+        region = model_box(job.workpiece.reference_surfaces);
+        if (job.workpiece.final_part) region.extend(model_box(*job.workpiece.final_part));
+        const double margin = 0.15 * region.diagonal().norm() + 5.0 * spacing;
+        region.min() -= Eigen::Vector3d::Constant(margin);
+        region.max() += Eigen::Vector3d::Constant(margin);
+    }
+
+    // The processor (§3.4.1), scans in parallel; each scan's outcome depends on that scan alone.
+    LocalizeSettings ls;
+    tbb::parallel_for(std::size_t(0), job.scans.size(), [&](std::size_t i) {
+        const auto ts = Clock::now();
+        const Scan& scan = job.scans[i];
+        ScanResult& r = result.scans[i];
+        r.file = scan.file;
+        r.points = scan.points->points_.size();
+        r.point_spacing = work[i].scale.spacing;
+        r.noise = work[i].scale.noise;
+        if (r.points < 100 || work[i].scale.spacing <= 0) {
+            r.message = "too few valid points (" + std::to_string(r.points) + ")";
+            return;
+        }
+        const Eigen::Vector3d viewpoint = estimate_viewpoint(*scan.points, work[i].scale.spacing);
+        const PreparedScan ps = prepare_scan(*scan.points, work[i].scale, sampling, viewpoint);
+        for (const auto& m : models) r.fits.push_back(localize_model(ps, m, ls));
+
+        // The best fiducial wins (§3.4.1); other accepted fiducials must agree with it.
+        int best = -1;
+        for (std::size_t k = 0; k < r.fits.size(); ++k)
+            if (r.fits[k].accepted &&
+                (best < 0 || r.fits[k].inliers * r.fits[k].score > r.fits[best].inliers * r.fits[best].score))
+                best = static_cast<int>(k);
+        if (best < 0) {
+            r.message = "no fiducial fits:";
+            for (const auto& f : r.fits) r.message += " " + f.fiducial + ": " + f.reason + ";";
+            r.message.pop_back();
+            return;
+        }
+        auto machine_scan = [&](std::size_t k) {
+            return fiducial_at(job.machine, job.fiducials[k], scan.axes) * r.fits[k].T_scan_fiducial.inverse();
+        };
+        const Eigen::Isometry3d T_machine_scan = machine_scan(best);
+        std::vector<std::string> names{job.fiducials[best].name};
+        for (std::size_t k = 0; k < r.fits.size(); ++k) {
+            if (static_cast<int>(k) == best || !r.fits[k].accepted) continue;
+            // Compare where the two fixes put this fiducial: a disagreement beyond a few noise sigmas means
+            // a fiducial moved or was probed wrong, and neither can be trusted blindly.
+            const Eigen::Isometry3d T_fid = fiducial_at(job.machine, job.fiducials[k], scan.axes);
+            const Eigen::Isometry3d T_other = machine_scan(k) * r.fits[k].T_scan_fiducial;
+            const Eigen::Isometry3d T_best = T_machine_scan * r.fits[k].T_scan_fiducial;
+            const PoseError e = pose_error(T_other, T_best);
+            (void)T_fid;
+            const double tol = std::max(20.0 * r.noise, 0.5 * sampling);
+            if (e.translation > tol || e.rotation_deg > 1.0) {
+                r.message = "fiducials " + job.fiducials[best].name + " and " + job.fiducials[k].name +
+                            fmt(" disagree by %.3g (units) and %.3g deg: one of them moved or was probed wrong",
+                                e.translation, e.rotation_deg);
+                return;
+            }
+            names.push_back(job.fiducials[k].name);
+        }
+        r.registered = true;
+        r.fiducials = names;
+        r.T_machine_scan = T_machine_scan;
+        r.score = r.fits[best].score;
+        r.rmse = r.fits[best].rmse;
+
+        // This scan's workpiece points, moved to the workpiece at the reference axis position (§3.4.2).
+        const Eigen::Isometry3d T_machine0_scan =
+            job.machine.motion(job.workpiece.moves_with, scan.axes).inverse() * T_machine_scan;
+        auto wp = std::make_shared<open3d::geometry::PointCloud>();
+        for (std::size_t k = 0; k < ps.cloud->points_.size(); ++k) {
+            const Eigen::Vector3d p = T_machine0_scan * ps.cloud->points_[k];
+            if (!region.contains(p)) continue;
+            wp->points_.push_back(p);
+            wp->normals_.push_back(T_machine0_scan.linear() * ps.cloud->normals_[k]);
+        }
+        work[i].workpiece_points = wp;
+        r.seconds = seconds_since(ts);
+    });
+
+    // The part (§3.4.2): merge, clean, fit the reference surfaces.
+    auto merged = std::make_shared<open3d::geometry::PointCloud>();
+    std::size_t registered = 0;
+    for (std::size_t i = 0; i < job.scans.size(); ++i) {
+        if (!result.scans[i].registered) continue;
+        ++registered;
+        *merged += *work[i].workpiece_points;
+    }
+    WorkpieceResult& w = result.workpiece;
+    w.T_machine_workpiece_nominal = job.workpiece.T_machine_workpiece;
+    if (registered == 0) {
+        w.message = "no scan could be registered to the machine";
+        result.seconds = seconds_since(t0);
+        return result;
+    }
+    if (merged->points_.size() > 30) {
+        merged = std::get<0>(merged->RemoveStatisticalOutliers(20, 2.5));
+    }
+    result.merged = merged;
+
+    const auto& ref = job.workpiece.reference_surfaces;
+    const double ref_d = model_box(ref).diagonal().norm();
+    const double ref_spacing = std::max(spacing, ref_d / 400.0);
+    std::shared_ptr<open3d::geometry::PointCloud> ref_samples;
+    if (ref.mesh && !ref.mesh->triangles_.empty()) {
+        ref_samples = sample_mesh(*ref.mesh, ref_spacing);
+    } else if (ref.points && !ref.points->points_.empty()) {
+        ref_samples = std::make_shared<open3d::geometry::PointCloud>(*ref.points);
+        if (!ref_samples->HasNormals()) {
+            ref_samples->EstimateNormals(open3d::geometry::KDTreeSearchParamKNN(20));
+            ref_samples->OrientNormalsConsistentTangentPlane(12);
+        }
+    } else {
+        w.message = "the reference surfaces are empty";
+        result.seconds = seconds_since(t0);
+        return result;
+    }
+    const Surface reference = make_surface(ref_samples, ref_spacing);
+    std::vector<double> noises;
+    for (const auto& s : result.scans)
+        if (s.registered) noises.push_back(s.noise);
+    WorkpieceFitSettings wfs;
+    wfs.noise = median_of(noises);
+    wfs.spacing = spacing;
+    const WorkpieceFit fit = fit_reference_surfaces(merged->points_, reference, wfs);
+    w.rmse = fit.rmse;
+    w.points = merged->points_.size();
+    w.inliers = fit.inliers;
+    w.information = fit.JtJ / std::max(wfs.noise * wfs.noise, 1e-30);
+    if (!fit.ok) {
+        w.message = fit.reason;
+        result.seconds = seconds_since(t0);
+        return result;
+    }
+    w.located = true;
+    w.T_machine_workpiece = fit.T_correction * job.workpiece.T_machine_workpiece;
+    result.located = true;
+
+    if (job.workpiece.final_part && job.workpiece.final_part->mesh) {
+        auto located = std::make_shared<open3d::geometry::TriangleMesh>(*job.workpiece.final_part->mesh);
+        located->Transform(fit.T_correction.matrix());
+        result.final_part_located = located;
+    }
+    if (settings.build_stock) {
+        StockSettings ss;
+        ss.spacing = spacing;
+        result.stock = build_stock(*merged, ss);
+    }
+    result.seconds = seconds_since(t0);
     return result;
 }
 

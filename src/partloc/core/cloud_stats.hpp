@@ -1,0 +1,33 @@
+#pragma once
+// Parameters from the data (issue 4 "Trust"): a scan's point spacing and noise, measured on the scan itself,
+// so that every radius and threshold can follow from them in any units.
+#include <open3d/geometry/PointCloud.h>
+
+#include <cstdint>
+
+namespace partloc {
+
+struct CloudStats {
+    double spacing = 0.0;  ///< median distance to the nearest neighbour (cloud units)
+    double noise = 0.0;    ///< robust 1-sigma scatter about local planes (cloud units)
+};
+
+/// Measures spacing and noise on up to `samples` points drawn with `seed`. Noise is the median, over
+/// neighbourhoods of 24 points, of the RMS distance to the local best-fit plane; on curved or edged regions
+/// that over-estimates, which the median keeps small.
+CloudStats measure_cloud(const open3d::geometry::PointCloud& cloud, std::size_t samples = 3000,
+                         std::uint64_t seed = 1);
+
+}  // namespace partloc
+
+#include <Eigen/Core>
+
+namespace partloc {
+
+/// Where the scanner was, in the scan's frame. Most scanners report points in their own frame, with the
+/// sensor at the origin: that is taken when the surface's consistently oriented normals all face the origin
+/// (or all face away) and the origin stands off from the surface by at least half its extent. Otherwise (a scan already moved into another frame, as the Stanford bunny's are) the
+/// surface's mean outward normal gives the viewing direction, and the viewpoint is put far along it.
+Eigen::Vector3d estimate_viewpoint(const open3d::geometry::PointCloud& cloud, double spacing);
+
+}  // namespace partloc

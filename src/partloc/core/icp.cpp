@@ -1,0 +1,99 @@
+#include "partloc/core/icp.hpp"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_reduce.h>
+
+#include <cmath>
+
+namespace partloc {
+
+Eigen::Isometry3d twist_exp(const Vector6d& xi) {
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    const Eigen::Vector3d w = xi.head<3>();
+    const double theta = w.norm();
+    if (theta > 1e-12) T.linear() = Eigen::AngleAxisd(theta, w / theta).toRotationMatrix();
+    T.translation() = xi.tail<3>();
+    return T;
+}
+
+namespace {
+
+struct Normal {
+    Matrix6d A = Matrix6d::Zero();
+    Vector6d b = Vector6d::Zero();
+    double r2 = 0.0;
+    std::size_t n = 0;
+    Normal operator+(const Normal& o) const { return {A + o.A, b + o.b, r2 + o.r2, n + o.n}; }
+};
+
+// One Gauss-Newton system: residual r = (T p - q) . n, Tukey weight with scale c.
+Normal accumulate(const std::vector<Eigen::Vector3d>& source, const Surface& target, const Eigen::Isometry3d& T,
+                  double max_distance, bool weighted) {
+    const double max_d2 = max_distance * max_distance;
+    return tbb::parallel_reduce(
+        tbb::blocked_range<std::size_t>(0, source.size(), 512), Normal{},
+        [&](const tbb::blocked_range<std::size_t>& range, Normal acc) {
+            for (std::size_t i = range.begin(); i != range.end(); ++i) {
+                const Eigen::Vector3d p = T * source[i];
+                double d2 = 0;
+                const int k = target.nearest(p, &d2);
+                if (k < 0 || d2 > max_d2) continue;
+                const Eigen::Vector3d& n = target.normals[k];
+                const double r = (p - target.points[k]).dot(n);
+                double w = 1.0;
+                if (weighted) {
+                    const double u = r / max_distance;
+                    w = (1 - u * u) * (1 - u * u);
+                }
+                Vector6d J;
+                J << p.cross(n), n;
+                acc.A.noalias() += w * J * J.transpose();
+                acc.b.noalias() -= w * r * J;
+                acc.r2 += r * r;
+                ++acc.n;
+            }
+            return acc;
+        },
+        [](const Normal& a, const Normal& b) { return a + b; });
+}
+
+}  // namespace
+
+IcpResult icp_point_to_plane(const std::vector<Eigen::Vector3d>& source, const Surface& target,
+                             const Eigen::Isometry3d& init, const IcpSettings& settings) {
+    IcpResult result;
+    Eigen::Isometry3d T = init;
+    const double scale = std::max(target.diameter, 1e-9);
+    bool all_converged = true;
+    for (double max_distance : settings.max_distances) {
+        bool converged = false;
+        for (int it = 0; it < settings.max_iterations; ++it) {
+            const Normal sys = accumulate(source, target, T, max_distance, true);
+            ++result.iterations;
+            if (sys.n < settings.min_correspondences) {
+                result.T_target_source = T;
+                result.converged = false;
+                return result;
+            }
+            // Levenberg-style damping keeps directions the data leave free (a plane seen alone) still.
+            Matrix6d A = sys.A;
+            A.diagonal().array() += 1e-9 * A.trace() + 1e-12;
+            const Vector6d xi = A.ldlt().solve(sys.b);
+            T = twist_exp(xi) * T;
+            if (xi.head<3>().norm() + xi.tail<3>().norm() / scale < settings.min_step) {
+                converged = true;
+                break;
+            }
+        }
+        all_converged = all_converged && converged;
+    }
+    const Normal last = accumulate(source, target, T, settings.max_distances.back(), false);
+    result.T_target_source = T;
+    result.converged = all_converged;
+    result.inliers = last.n;
+    result.rmse = last.n ? std::sqrt(last.r2 / last.n) : 0.0;
+    result.JtJ = last.A;
+    return result;
+}
+
+}  // namespace partloc

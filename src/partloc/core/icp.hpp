@@ -1,0 +1,41 @@
+#pragma once
+// Fine least-squares fit (paper §3.4.1, "final fit"): point-to-plane ICP of scan points onto oriented model
+// samples, with Tukey weights and a shrinking correspondence distance. Our own loop rather than
+// open3d::pipelines::registration::RegistrationICP because the model's KD-tree is built once per job and
+// reused for every scan and candidate (Open3D rebuilds the target tree on every call), and because the
+// result needs the fit's information matrix in the model frame for the verification and the uncertainty.
+#include <Eigen/Geometry>
+#include <string>
+#include <vector>
+
+#include "partloc/core/geometry.hpp"
+#include "partloc/core/surface.hpp"
+
+namespace partloc {
+
+struct IcpSettings {
+    std::vector<double> max_distances;  ///< correspondence distance per stage, decreasing (job units)
+    int max_iterations = 30;            ///< per stage
+    double min_step = 1e-7;             ///< stop a stage when the update is smaller (radians, job units/diameter)
+    std::size_t min_correspondences = 12;
+};
+
+struct IcpResult {
+    Eigen::Isometry3d T_target_source = Eigen::Isometry3d::Identity();
+    bool converged = false;
+    int iterations = 0;
+    std::size_t inliers = 0;   ///< correspondences within the last stage's distance
+    double rmse = 0.0;         ///< RMS point-to-plane residual of the inliers (job units)
+    /// Sum of J J^T over the inliers, J = [p x n; n] in the target frame (twist order [w, v]).
+    /// Divide by the noise variance for the information matrix of T_target_source.
+    Matrix6d JtJ = Matrix6d::Zero();
+};
+
+/// Aligns source points (their own frame) onto `target` starting from init (T_target_source).
+IcpResult icp_point_to_plane(const std::vector<Eigen::Vector3d>& source, const Surface& target,
+                             const Eigen::Isometry3d& init, const IcpSettings& settings);
+
+/// exp of a twist [w, v] as a rigid transform.
+Eigen::Isometry3d twist_exp(const Vector6d& xi);
+
+}  // namespace partloc

@@ -1,0 +1,86 @@
+#pragma once
+// The processor (paper §3.4.1): for one scan and one fiducial, a global fit with no initial guess (PPF
+// voting), a fine least-squares fit (point-to-plane ICP) of each candidate, verification, and a decision
+// with its reason.
+#include <open3d/geometry/KDTreeFlann.h>
+#include <open3d/geometry/PointCloud.h>
+
+#include <Eigen/Geometry>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "partloc/core/geometry.hpp"
+#include "partloc/core/ppf.hpp"
+#include "partloc/core/surface.hpp"
+#include "partloc/core/verify.hpp"
+
+namespace partloc {
+
+/// Scale of a job: every radius and threshold follows from these two numbers (issue 4: parameters from
+/// the scanner's specification or, when absent, from the data).
+struct Scale {
+    double spacing = 0.0;  ///< scan point spacing (job units)
+    double noise = 0.0;    ///< scan noise, 1 sigma (job units)
+};
+
+/// A scan ready for fitting: its points, a search tree and a coarse oriented copy for the global fit.
+struct PreparedScan {
+    std::shared_ptr<open3d::geometry::PointCloud> cloud;  ///< valid points, scan frame
+    std::shared_ptr<open3d::geometry::KDTreeFlann> tree;
+    std::vector<Eigen::Vector3d> coarse_points, coarse_normals;  ///< at the PPF sampling
+    Eigen::Vector3d viewpoint = Eigen::Vector3d::Zero();           ///< scanner position, scan frame
+    Scale scale;
+};
+
+/// Normals on the full scan (oriented to the viewpoint), then a voxel grid at `sampling` for the global fit.
+PreparedScan prepare_scan(const open3d::geometry::PointCloud& points, const Scale& scale, double sampling,
+                          const Eigen::Vector3d& viewpoint);
+
+/// A fiducial (or any rigid model) ready for fitting: dense oriented samples and the PPF table.
+struct PreparedModel {
+    std::string name;
+    Surface dense;                 ///< for the fine fit and the verification
+    std::shared_ptr<PpfModel> ppf; ///< for the global fit
+    double sampling = 0.0;         ///< PPF sampling (job units)
+};
+
+/// Samples the model (a mesh by Poisson disk at `dense_spacing`, or points with normals as they are) and
+/// builds its PPF table at `sampling`.
+PreparedModel prepare_model(const std::string& name, const open3d::geometry::TriangleMesh* mesh,
+                            const open3d::geometry::PointCloud* points, double dense_spacing, double sampling);
+
+/// The outcome of fitting one fiducial to one scan.
+struct FiducialFit {
+    std::string fiducial;
+    bool accepted = false;
+    std::string reason;  ///< why it was not accepted; empty when accepted
+    Eigen::Isometry3d T_scan_fiducial = Eigen::Isometry3d::Identity();
+    double rmse = 0.0;          ///< RMS point-to-surface distance of the inliers (job units)
+    double coverage = 0.0;      ///< fraction of the model surface facing the scanner that was observed
+    double violation = 0.0;     ///< fraction of nearby scan points seen inside the model's solid
+    double conditioning = 0.0;  ///< smallest eigenvalue of the normalised fit information, 0..1/3
+    double score = 0.0;         ///< coverage * (1 - violation) of the chosen pose
+    std::size_t inliers = 0;    ///< scan points on the model surface
+    int candidates = 0;         ///< global-fit candidates examined
+    /// Sum of J J^T over the inliers in the fiducial frame, J = [p x n; n]; information = JtJ / noise^2.
+    Matrix6d JtJ = Matrix6d::Zero();
+};
+
+struct LocalizeSettings {
+    int candidates = 10;            ///< global-fit candidates screened by a coarse fit
+    int verified = 3;               ///< of those, the best refined finely and verified
+    double min_coverage = 0.30;     ///< of the model surface facing the scanner
+    double max_violation = 0.05;    ///< of nearby points seen inside the model
+    double min_conditioning = 0.003; ///< a plane alone gives 0; a corner about 0.1-0.3
+    std::size_t min_inliers = 100;
+    /// RMS residual at most this fraction of the inlier distance (3 noise sigmas and the model's sampling):
+    /// about 1/3 for Gaussian noise, 0.58 for residuals spread evenly, as a wrong fit's are.
+    double max_rmse = 0.5;
+    double ambiguity = 0.8;         ///< a distinct pose with this fraction of the best inliers: ambiguous
+};
+
+/// Fits `model` to `scan`: global fit, fine fit of the best candidates, verification, decision.
+FiducialFit localize_model(const PreparedScan& scan, const PreparedModel& model, const LocalizeSettings& settings);
+
+}  // namespace partloc

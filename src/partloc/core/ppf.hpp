@@ -1,0 +1,71 @@
+#pragma once
+// Global fit with no initial guess: point-pair-feature voting (Drost et al., "Model globally, match
+// locally", CVPR 2010). Why not Open3D's FPFH + RANSAC: on a cell cluttered with planes (pallet, chuck,
+// trunnion) FPFH descriptors of flat and prismatic regions are alike, and the tutorial pipeline registered
+// 0 of 6 scans (issue 2). Pair features of points on *different* faces keep the block's unique geometry;
+// pairs on one plane carry no shape and are skipped, so planar clutter casts no votes.
+#include <Eigen/Geometry>
+#include <cstdint>
+#include <vector>
+
+namespace partloc {
+
+struct PpfSettings {
+    double sampling = 0.0;      ///< distance step and point sampling (job units); required > 0
+    int angle_bins = 15;        ///< bins over [0, pi] for the three feature angles (12 degrees each)
+    int alpha_bins = 30;        ///< bins over 2 pi for the rotation about the normal (12 degrees each)
+    int reference_stride = 4;   ///< every k-th scene point is a reference point
+    double coplanar_deg = 8.0;  ///< a pair whose normals and joining line are within this of coplanar is skipped
+    int max_candidates = 12;    ///< pose clusters returned, most votes first
+    double cluster_rotation_deg = 12.0;  ///< poses closer than this and cluster_distance join one cluster
+    double cluster_distance = 0.0;       ///< (job units); 0: 2 * sampling
+};
+
+/// The model's pair features, hashed. Built once per model, searched from many threads.
+class PpfModel {
+public:
+    /// points, normals: the model sampled at about settings.sampling, unit normals, in the model frame.
+    PpfModel(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& normals,
+             const PpfSettings& settings);
+
+    const PpfSettings& settings() const { return settings_; }
+    double diameter() const { return diameter_; }
+    std::size_t size() const { return points_.size(); }
+
+    /// Feature key of an oriented pair, or -1 for a pair that is skipped (too close, coplanar).
+    int key(const Eigen::Vector3d& p1, const Eigen::Vector3d& n1, const Eigen::Vector3d& p2,
+            const Eigen::Vector3d& n2) const;
+
+    struct Entry {
+        std::uint32_t model_index;
+        float alpha;  ///< angle of the pair about the first normal, radians
+    };
+    /// Entries with this key: [begin, end).
+    std::pair<const Entry*, const Entry*> lookup(int key) const;
+
+    const std::vector<Eigen::Vector3d>& points() const { return points_; }
+    const std::vector<Eigen::Vector3d>& normals() const { return normals_; }
+
+private:
+    PpfSettings settings_;
+    std::vector<Eigen::Vector3d> points_, normals_;
+    double diameter_ = 0.0;
+    int distance_bins_ = 0;
+    std::vector<std::uint32_t> offsets_;  ///< CSR: entries of key k are entries_[offsets_[k], offsets_[k+1])
+    std::vector<Entry> entries_;
+};
+
+struct PoseCandidate {
+    Eigen::Isometry3d T_scene_model = Eigen::Isometry3d::Identity();
+    double votes = 0.0;
+};
+
+/// Votes for model poses in a scene sampled at about the model's sampling, with unit normals. Returns up to
+/// settings.max_candidates pose clusters, most votes first. Deterministic for any number of threads.
+std::vector<PoseCandidate> ppf_detect(const PpfModel& model, const std::vector<Eigen::Vector3d>& scene_points,
+                                      const std::vector<Eigen::Vector3d>& scene_normals);
+
+/// Alignment of an oriented point to the origin with its normal along +x (Drost's T_{m->g}).
+Eigen::Isometry3d ppf_align_to_x(const Eigen::Vector3d& p, const Eigen::Vector3d& n);
+
+}  // namespace partloc

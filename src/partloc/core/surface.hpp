@@ -1,0 +1,38 @@
+#pragma once
+// Oriented surface samples with a search structure built once, shared by the fine fit and the verification.
+#include <open3d/geometry/KDTreeFlann.h>
+#include <open3d/geometry/PointCloud.h>
+#include <open3d/geometry/TriangleMesh.h>
+
+#include <Eigen/Core>
+#include <memory>
+#include <vector>
+
+namespace partloc {
+
+/// Points with unit normals and a KD-tree over the points. Build once, query from many threads.
+struct Surface {
+    std::vector<Eigen::Vector3d> points;
+    std::vector<Eigen::Vector3d> normals;
+    std::shared_ptr<open3d::geometry::PointCloud> cloud;  ///< the same points, for Open3D calls
+    std::shared_ptr<open3d::geometry::KDTreeFlann> tree;
+    Eigen::Vector3d center = Eigen::Vector3d::Zero();  ///< centre of the bounding box
+    double diameter = 0.0;                             ///< bounding-box diagonal (job units)
+    double spacing = 0.0;                              ///< typical distance between samples (job units)
+
+    /// Index of the nearest sample and its squared distance; -1 when the surface is empty.
+    int nearest(const Eigen::Vector3d& p, double* squared_distance) const;
+};
+
+/// Builds a Surface from points that carry normals (throws std::invalid_argument without normals).
+Surface make_surface(std::shared_ptr<open3d::geometry::PointCloud> cloud, double spacing);
+
+/// Paper §3.2 step 5 (MeshLab's Poisson-disk filter): samples the mesh surface with Poisson-disk sampling at
+/// about `spacing` between samples, with the triangles' own normals (outward for a closed mesh).
+std::shared_ptr<open3d::geometry::PointCloud> sample_mesh(const open3d::geometry::TriangleMesh& mesh,
+                                                          double spacing);
+
+/// Total area of a mesh's triangles.
+double mesh_area(const open3d::geometry::TriangleMesh& mesh);
+
+}  // namespace partloc

@@ -1,0 +1,65 @@
+#include "partloc/core/workpiece_fit.hpp"
+
+#include <Eigen/Eigenvalues>
+#include <cmath>
+#include <cstdio>
+
+#include "partloc/core/icp.hpp"
+
+namespace partloc {
+
+WorkpieceFit fit_reference_surfaces(const std::vector<Eigen::Vector3d>& merged, const Surface& reference,
+                                    const WorkpieceFitSettings& st) {
+    WorkpieceFit fit;
+    if (merged.size() < st.min_inliers) {
+        fit.reason = "too few workpiece points (" + std::to_string(merged.size()) + ") to fit the reference surfaces";
+        return fit;
+    }
+    // Coarse to fine: the part sits millimetres and degrees off nominal; the last stage keeps only points
+    // within three noise sigmas (plus the model's sampling) of the surfaces.
+    const double D = reference.diameter;
+    const double start = st.max_start_distance > 0 ? st.max_start_distance : 0.1 * D;
+    const double fine = std::sqrt(9.0 * st.noise * st.noise + 0.25 * reference.spacing * reference.spacing);
+    IcpSettings is;
+    for (double d = start; d > 4.0 * fine; d *= 0.5) is.max_distances.push_back(d);
+    is.max_distances.push_back(4.0 * fine);
+    is.max_distances.push_back(fine);
+    is.max_iterations = 40;
+    const IcpResult icp = icp_point_to_plane(merged, reference, Eigen::Isometry3d::Identity(), is);
+    fit.iterations = icp.iterations;
+    fit.T_correction = icp.T_target_source.inverse();
+    fit.rmse = icp.rmse;
+    fit.inliers = icp.inliers;
+    fit.JtJ = icp.JtJ;
+    // Conditioning as in verify_pose: rotations scaled by half the diameter about the centre.
+    if (icp.inliers) {
+        Matrix6d S = Matrix6d::Identity();
+        const double L = std::max(D / 2.0, 1e-12);
+        // J_c = [ (p - c) x n / L ; n ] = [ (p x n - c x n) / L ; n ]  =>  J_c = A J with A below.
+        Eigen::Matrix3d C;
+        C << 0, -reference.center.z(), reference.center.y(), reference.center.z(), 0, -reference.center.x(),
+            -reference.center.y(), reference.center.x(), 0;
+        S.topLeftCorner<3, 3>() = Eigen::Matrix3d::Identity() / L;
+        S.topRightCorner<3, 3>() = -C / L;
+        const Matrix6d N = S * icp.JtJ * S.transpose() / static_cast<double>(icp.inliers);
+        Eigen::SelfAdjointEigenSolver<Matrix6d> es(N);
+        fit.conditioning = std::max(0.0, es.eigenvalues()(0));
+    }
+    char buf[200];
+    if (icp.inliers < st.min_inliers) {
+        std::snprintf(buf, sizeof buf, "only %zu points lie on the reference surfaces (needs %zu)", icp.inliers,
+                      st.min_inliers);
+        fit.reason = buf;
+    } else if (fit.conditioning < st.min_conditioning) {
+        std::snprintf(buf, sizeof buf,
+                      "the scans do not show enough of the reference surfaces to fix all six degrees of "
+                      "freedom (conditioning %.4f, needs %.3f)",
+                      fit.conditioning, st.min_conditioning);
+        fit.reason = buf;
+    } else {
+        fit.ok = true;
+    }
+    return fit;
+}
+
+}  // namespace partloc
