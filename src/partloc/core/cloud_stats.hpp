@@ -25,9 +25,10 @@ CloudStats measure_cloud(const open3d::geometry::PointCloud& cloud, std::size_t 
 namespace partloc {
 
 /// Where the scanner was, in the scan's frame. Most scanners report points in their own frame, with the
-/// sensor at the origin: that is taken when the surface's consistently oriented normals all face the origin
-/// (or all face away) and the origin stands off from the surface by at least half its extent. Otherwise (a scan already moved into another frame, as the Stanford bunny's are) the
-/// surface's mean outward normal gives the viewing direction, and the viewpoint is put far along it.
+/// sensor at the origin: that is taken unless more than 4 % of the surface is seen edge-on (within 10
+/// degrees) from the origin, which a scanner there would not have returned. Otherwise (a scan already moved
+/// into another frame, as the Stanford bunny's are) the surface's mean outward normal gives the viewing
+/// direction, and the viewpoint is put far along it.
 Eigen::Vector3d estimate_viewpoint(const open3d::geometry::PointCloud& cloud, double spacing);
 
 }  // namespace partloc

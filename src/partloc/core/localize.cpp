@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <stdexcept>
 
 #include "partloc/core/icp.hpp"
@@ -77,136 +78,187 @@ PreparedModel prepare_model(const std::string& name, const open3d::geometry::Tri
     return m;
 }
 
-FiducialFit localize_model(const PreparedScan& scan, const PreparedModel& model, const LocalizeSettings& st) {
-    FiducialFit best;
-    best.fiducial = model.name;
-    const double s = model.sampling;
-    const double noise = std::max(scan.scale.noise, 1e-9);
-    const double ms = model.dense.spacing;
+double support(const FiducialFit& f) { return static_cast<double>(f.inliers) * f.score; }
+
+namespace {
+
+struct Thresholds {
     VerifySettings vs;
-    vs.inlier_distance = std::sqrt(9.0 * noise * noise + 0.5 * ms * ms);
-    vs.cover_distance = std::max(vs.inlier_distance, 1.5 * scan.scale.spacing);
     IcpSettings is;
-    is.max_distances = {2.0 * s, 1.0 * s, 0.5 * s, std::max(vs.inlier_distance, 0.2 * s)};
+    double noise;
+};
 
+Thresholds thresholds(const PreparedScan& scan, const PreparedModel& model) {
+    Thresholds t;
+    const double s = model.sampling;
+    t.noise = std::max(scan.scale.noise, 1e-9);
+    const double ms = model.dense.spacing;
+    t.vs.inlier_distance = std::sqrt(9.0 * t.noise * t.noise + 0.5 * ms * ms);
+    t.vs.bin_size = 2.0 * std::max(ms, scan.scale.spacing);
+    t.is.max_distances = {2.0 * s, 1.0 * s, 0.5 * s, std::max(t.vs.inlier_distance, 0.2 * s)};
+    return t;
+}
+
+std::vector<Eigen::Vector3d> points_near(const PreparedScan& scan, const Eigen::Vector3d& centre, double radius) {
+    std::vector<int> idx;
+    std::vector<double> d2;
+    scan.tree->SearchRadius(centre, radius, idx, d2);
+    std::sort(idx.begin(), idx.end());  // the tree's order is not guaranteed; the result must not vary
+    std::vector<Eigen::Vector3d> out;
+    out.reserve(idx.size());
+    for (int k : idx) out.push_back(scan.cloud->points_[k]);
+    return out;
+}
+
+std::vector<Eigen::Vector3d> subsample(const std::vector<Eigen::Vector3d>& v, std::size_t max_n) {
+    std::vector<Eigen::Vector3d> out;
+    const std::size_t stride = std::max<std::size_t>(1, (v.size() + max_n - 1) / max_n);
+    for (std::size_t k = 0; k < v.size(); k += stride) out.push_back(v[k]);
+    return out;
+}
+
+FiducialFit judge(const PreparedModel& model, const Eigen::Isometry3d& T_scan_model, const Verification& v,
+                  const Thresholds& t, const LocalizeSettings& st, bool quiet = false) {
+    FiducialFit f;
+    f.fiducial = model.name;
+    f.T_scan_fiducial = T_scan_model;
+    f.rmse = v.rmse;
+    f.coverage = v.coverage;
+    f.violation = v.violation;
+    f.conditioning = v.conditioning;
+    f.spread = v.spread;
+    f.inliers = v.inliers;
+    f.overflow = v.inliers ? static_cast<double>(v.overflow) / v.inliers : 0.0;
+    f.observed = v.observed;
+    f.seen_through = v.seen_through + v.crowded;
+    f.JtJ = v.JtJ;
+    f.score = v.coverage * (1.0 - v.violation);
+    if (v.inliers < st.min_inliers)
+        f.reason = fmt("too few points on the fiducial (%.0f, needs %.0f)", v.inliers, st.min_inliers);
+    else if (v.conditioning < st.min_conditioning)
+        f.reason = fmt("seen only as a plane or an edge: the fit leaves a direction free (conditioning %.4f, "
+                       "needs %.3f)", v.conditioning, st.min_conditioning);
+    else if (v.violation > st.max_violation)
+        f.reason = fmt("the scan contradicts %.0f%% of the fiducial's surface: seen through it or material "
+                       "just in front of it (at most %.0f%%)",
+                       100 * v.violation, 100 * st.max_violation);
+    else if (f.overflow > st.max_overflow)
+        f.reason = fmt("the scanned surfaces run on past the fiducial's edges (%.0f%% of its points; at most "
+                       "%.0f%%): something larger is there", 100 * f.overflow, 100 * st.max_overflow);
+    else if (v.coverage < st.min_coverage)
+        f.reason = fmt("only %.0f%% of the fiducial's visible surface observed (needs %.0f%%)",
+                       100 * v.coverage, 100 * st.min_coverage);
+    else if (v.rmse > st.max_rmse * t.vs.inlier_distance)
+        f.reason = fmt("residual %.4g is above %.4g", v.rmse, st.max_rmse * t.vs.inlier_distance);
+    f.accepted = f.reason.empty();
+    if (!quiet && std::getenv("PARTLOC_DEBUG2"))
+        std::fprintf(stderr, "DEBUG2 %s over %.3f spread %.3f cond %.4f inl %zu obs %zu seen %zu crowd %zu occl %zu miss %zu cov %.2f viol %.3f tol %.2f\n",
+                     model.name.c_str(), f.overflow, v.spread, v.conditioning, v.inliers, v.observed, v.seen_through, v.crowded, v.occluded, v.missing,
+                     v.coverage, v.violation, t.vs.inlier_distance + t.vs.bin_size);
+    return f;
+}
+
+}  // namespace
+
+
+FiducialFit evaluate_model(const PreparedScan& scan, const PreparedModel& model,
+                           const Eigen::Isometry3d& T_scan_model, const LocalizeSettings& st) {
+    const Thresholds t = thresholds(scan, model);
+    const auto local =
+        points_near(scan, T_scan_model * model.dense.center, model.dense.diameter / 2.0 + 2.0 * model.sampling);
+    const Verification v = verify_pose(local, model.dense, T_scan_model.inverse(), scan.viewpoint, t.vs);
+    return judge(model, T_scan_model, v, t, st);
+}
+
+std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const PreparedModel& model,
+                                        const LocalizeSettings& st) {
+    const Thresholds t = thresholds(scan, model);
+    const double s = model.sampling;
     const auto candidates = ppf_detect(*model.ppf, scan.coarse_points, scan.coarse_normals);
-    if (candidates.empty()) {
-        best.reason = "no candidate pose: the scan has no geometry like this fiducial";
-        return best;
-    }
-
-    struct Tried {
-        FiducialFit fit;
-        Verification v;
-    };
-    std::vector<Tried> tried;
-    const double radius = model.dense.diameter / 2.0 + 2.0 * s;
-    auto subsample = [](const std::vector<Eigen::Vector3d>& v, std::size_t max_n) {
-        std::vector<Eigen::Vector3d> out;
-        const std::size_t stride = std::max<std::size_t>(1, (v.size() + max_n - 1) / max_n);
-        for (std::size_t k = 0; k < v.size(); k += stride) out.push_back(v[k]);
-        return out;
-    };
 
     // Stage 1, screening: every candidate gets a coarse fit on a few thousand points and is ranked by the
     // points it then explains. Stage 2: the best few get the fine fit and the full verification.
     struct Screened {
         Eigen::Isometry3d T_model_scan;
         std::vector<Eigen::Vector3d> local;
-        std::size_t support = 0;
+        double support = 0.0;
+        bool passed = false;
     };
     std::vector<Screened> screened;
-    IcpSettings coarse = is;
+    IcpSettings coarse = t.is;
     coarse.max_distances = {2.0 * s, 1.0 * s};
     coarse.max_iterations = 15;
+    VerifySettings quick = t.vs;
+    quick.inlier_distance = std::max(t.vs.inlier_distance, 0.25 * s);  // before the fine fit
+    const double radius = model.dense.diameter / 2.0 + 2.0 * s;
     const int n = std::min<int>(st.candidates, static_cast<int>(candidates.size()));
-    std::vector<int> idx;
-    std::vector<double> d2;
     for (int i = 0; i < n; ++i) {
         const Eigen::Isometry3d& T_sm = candidates[i].T_scene_model;
-        scan.tree->SearchRadius(T_sm * model.dense.center, radius, idx, d2);
-        if (idx.size() < st.min_inliers) continue;
-        std::sort(idx.begin(), idx.end());  // the tree's order is not guaranteed; the result must not vary
         Screened c;
-        c.local.reserve(idx.size());
-        for (int k : idx) c.local.push_back(scan.cloud->points_[k]);
+        c.local = points_near(scan, T_sm * model.dense.center, radius);
+        if (c.local.size() < st.min_inliers) continue;
         const auto sub = subsample(c.local, 3000);
         const IcpResult icp = icp_point_to_plane(sub, model.dense, T_sm.inverse(), coarse);
         c.T_model_scan = icp.T_target_source;
-        c.support = icp.inliers;
         // Candidates that the coarse fit brought to one pose are one candidate.
         bool duplicate = false;
         for (const auto& o : screened) {
             const PoseError e = pose_error(o.T_model_scan, c.T_model_scan);
             duplicate = duplicate || (e.translation < 0.5 * s && e.rotation_deg < 3.0);
         }
-        if (!duplicate) screened.push_back(std::move(c));
+        if (duplicate) continue;
+        // A quick verification on the subsample ranks the candidates: support alone would favour a model
+        // lying on a large plane over the real, smaller instance.
+        const Verification v = verify_pose(sub, model.dense, c.T_model_scan, scan.viewpoint, quick);
+        const FiducialFit f = judge(model, c.T_model_scan.inverse(), v, t, st, /*quiet=*/true);
+        c.support = support(f);
+        c.passed = f.violation <= 2.0 * st.max_violation && f.overflow <= 2.0 * st.max_overflow;
+        screened.push_back(std::move(c));
     }
-    std::stable_sort(screened.begin(), screened.end(),
-                     [](const Screened& a, const Screened& b) { return a.support > b.support; });
-    IcpSettings fine = is;
-    fine.max_distances = {0.5 * s, is.max_distances.back()};
+    std::stable_sort(screened.begin(), screened.end(), [](const Screened& a, const Screened& b) {
+        if (a.passed != b.passed) return a.passed;
+        return a.support > b.support;
+    });
+    IcpSettings fine = t.is;
+    fine.max_distances = {0.5 * s, t.is.max_distances.back()};
+    std::vector<FiducialFit> fits;
     for (std::size_t i = 0; i < screened.size() && static_cast<int>(i) < st.verified; ++i) {
         const auto& c = screened[i];
         const IcpResult icp = icp_point_to_plane(subsample(c.local, 20000), model.dense, c.T_model_scan, fine);
         const Eigen::Isometry3d T_ms = icp.T_target_source;
-        const Verification v = verify_pose(c.local, model.dense, T_ms, scan.viewpoint, vs);
-        Tried t;
-        t.v = v;
-        FiducialFit& f = t.fit;
-        f.fiducial = model.name;
-        f.T_scan_fiducial = T_ms.inverse();
-        f.rmse = v.rmse;
-        f.coverage = v.coverage;
-        f.violation = v.violation;
-        f.conditioning = v.conditioning;
-        f.inliers = v.inliers;
-        f.JtJ = v.JtJ;
-        f.score = v.coverage * (1.0 - v.violation);
-        if (v.inliers < st.min_inliers)
-            f.reason = fmt("too few points on the fiducial (%.0f, needs %.0f)", v.inliers, st.min_inliers);
-        else if (v.conditioning < st.min_conditioning)
-            f.reason = fmt("seen only as a plane or an edge: the fit leaves a direction free (conditioning %.4f, "
-                           "needs %.3f)", v.conditioning, st.min_conditioning);
-        else if (v.violation > st.max_violation)
-            f.reason = fmt("%.0f%% of nearby points lie inside the fiducial's solid (at most %.0f%%)",
-                           100 * v.violation, 100 * st.max_violation);
-        else if (v.coverage < st.min_coverage)
-            f.reason = fmt("only %.0f%% of the fiducial's visible surface observed (needs %.0f%%)",
-                           100 * v.coverage, 100 * st.min_coverage);
-        else if (v.rmse > st.max_rmse * vs.inlier_distance)
-            f.reason = fmt("residual %.4g is above %.4g", v.rmse, st.max_rmse * vs.inlier_distance);
-        f.accepted = f.reason.empty();
-        tried.push_back(std::move(t));
+        // Verify on the points around the refined pose: the fit may have moved by up to the sampling.
+        const auto local = points_near(scan, T_ms.inverse() * model.dense.center, radius);
+        const Verification v = verify_pose(local, model.dense, T_ms, scan.viewpoint, t.vs);
+        FiducialFit f = judge(model, T_ms.inverse(), v, t, st);
+        f.candidates = n;
+        fits.push_back(std::move(f));
     }
-    best.candidates = n;
-    if (tried.empty()) {
-        best.reason = "no candidate pose had enough scan points around it";
-        return best;
+    std::stable_sort(fits.begin(), fits.end(), [](const FiducialFit& a, const FiducialFit& b) {
+        if (a.accepted != b.accepted) return a.accepted;
+        return support(a) > support(b);
+    });
+    return fits;
+}
+
+FiducialFit localize_model(const PreparedScan& scan, const PreparedModel& model, const LocalizeSettings& st) {
+    const auto fits = fit_candidates(scan, model, st);
+    if (fits.empty()) {
+        FiducialFit none;
+        none.fiducial = model.name;
+        none.reason = "no candidate pose: the scan has no geometry like this fiducial near enough points";
+        return none;
     }
-    // The best accepted pose by support; without one, the most convincing rejected one explains why.
-    auto support = [](const Tried& t) { return t.fit.inliers * t.fit.score; };
-    const Tried* top = nullptr;
-    for (const auto& t : tried)
-        if (t.fit.accepted && (!top || support(t) > support(*top))) top = &t;
-    if (!top) {
-        for (const auto& t : tried)
-            if (!top || support(t) > support(*top)) top = &t;
-        best = top->fit;
-        best.candidates = n;
-        best.accepted = false;
-        return best;
-    }
-    best = top->fit;
-    best.candidates = n;
-    for (const auto& t : tried) {
-        if (&t == top || !t.fit.accepted) continue;
-        const PoseError e = pose_error(t.fit.T_scan_fiducial, top->fit.T_scan_fiducial);
-        if ((e.translation > 2.0 * ms || e.rotation_deg > 2.0) &&
-            t.fit.inliers * t.fit.score >= st.ambiguity * support(*top)) {
+    FiducialFit best = fits.front();  // accepted ones first, then by support
+    if (!best.accepted) return best;
+    for (std::size_t i = 1; i < fits.size(); ++i) {
+        const auto& f = fits[i];
+        if (!f.accepted) continue;
+        const PoseError e = pose_error(f.T_scan_fiducial, best.T_scan_fiducial);
+        if ((e.translation > 2.0 * model.dense.spacing || e.rotation_deg > 2.0) &&
+            support(f) >= st.ambiguity * support(best)) {
             best.accepted = false;
             best.reason = fmt("ambiguous: two poses %.3g apart fit about equally well (%.0f%% of the support)",
-                              e.translation, 100.0 * support(t) / support(*top));
+                              e.translation, 100.0 * support(f) / support(best));
             break;
         }
     }

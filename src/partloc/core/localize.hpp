@@ -58,21 +58,26 @@ struct FiducialFit {
     Eigen::Isometry3d T_scan_fiducial = Eigen::Isometry3d::Identity();
     double rmse = 0.0;          ///< RMS point-to-surface distance of the inliers (job units)
     double coverage = 0.0;      ///< fraction of the model surface facing the scanner that was observed
-    double violation = 0.0;     ///< fraction of nearby scan points seen inside the model's solid
+    double violation = 0.0;     ///< fraction of the observed model surface the scanner saw through
     double conditioning = 0.0;  ///< smallest eigenvalue of the normalised fit information, 0..1/3
-    double score = 0.0;         ///< coverage * (1 - violation) of the chosen pose
+    double spread = 0.0;        ///< smallest eigenvalue of the inliers' mean n n^T, 0..1/3
+    double score = 0.0;         ///< coverage * (1 - violation)
     std::size_t inliers = 0;    ///< scan points on the model surface
+    double overflow = 0.0;      ///< points continuing the model's facing faces past its edges, per inlier
+    std::size_t observed = 0;      ///< ray bins of model surface observed (see Verification)
+    std::size_t seen_through = 0;  ///< ray bins of model surface the scanner saw through
     int candidates = 0;         ///< global-fit candidates examined
     /// Sum of J J^T over the inliers in the fiducial frame, J = [p x n; n]; information = JtJ / noise^2.
     Matrix6d JtJ = Matrix6d::Zero();
 };
 
 struct LocalizeSettings {
-    int candidates = 10;            ///< global-fit candidates screened by a coarse fit
-    int verified = 3;               ///< of those, the best refined finely and verified
+    int candidates = 48;            ///< global-fit candidates screened by a coarse fit
+    int verified = 4;               ///< of those, the best refined finely and verified
     double min_coverage = 0.30;     ///< of the model surface facing the scanner
     double max_violation = 0.05;    ///< of nearby points seen inside the model
     double min_conditioning = 0.003; ///< a plane alone gives 0; a corner about 0.1-0.3
+    double max_overflow = 0.04;      ///< points continuing the model's faces past its edges, per inlier
     std::size_t min_inliers = 100;
     /// RMS residual at most this fraction of the inlier distance (3 noise sigmas and the model's sampling):
     /// about 1/3 for Gaussian noise, 0.58 for residuals spread evenly, as a wrong fit's are.
@@ -80,7 +85,20 @@ struct LocalizeSettings {
     double ambiguity = 0.8;         ///< a distinct pose with this fraction of the best inliers: ambiguous
 };
 
-/// Fits `model` to `scan`: global fit, fine fit of the best candidates, verification, decision.
+/// Support of a fit: the points on the model, weighted by coverage and the absence of see-through.
+double support(const FiducialFit& fit);
+
+/// Every candidate pose of `model` in `scan` after the fine fit and the verification: those that pass the
+/// local checks first, then by support. Ambiguity is left to the caller.
+std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const PreparedModel& model,
+                                        const LocalizeSettings& settings);
+
+/// Judges `model` at a given pose in the scan (no fitting): where another fiducial says it must be.
+FiducialFit evaluate_model(const PreparedScan& scan, const PreparedModel& model,
+                           const Eigen::Isometry3d& T_scan_model, const LocalizeSettings& settings);
+
+/// Fits `model` to `scan`: global fit, fine fit of the best candidates, verification, decision; a second
+/// distinct pose with nearly the best support makes the answer ambiguous, and it is rejected.
 FiducialFit localize_model(const PreparedScan& scan, const PreparedModel& model, const LocalizeSettings& settings);
 
 }  // namespace partloc

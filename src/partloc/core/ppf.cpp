@@ -43,6 +43,7 @@ PpfModel::PpfModel(const std::vector<Eigen::Vector3d>& points, const std::vector
     Eigen::AlignedBox3d box;
     for (const auto& p : points_) box.extend(p);
     diameter_ = box.diagonal().norm();
+    center_ = box.center();
     distance_bins_ = static_cast<int>(std::ceil(diameter_ / settings_.sampling)) + 2;
     const int nkeys = distance_bins_ * settings_.angle_bins * settings_.angle_bins * settings_.angle_bins;
 
@@ -173,9 +174,20 @@ std::vector<PoseCandidate> ppf_detect(const PpfModel& model, const std::vector<E
         if (clusters.size() > 2000) break;
     }
     std::stable_sort(clusters.begin(), clusters.end(), [](const auto& a, const auto& b) { return a.votes > b.votes; });
+    // Spread the candidates over the scene: a large structure that resembles the model (a big block with a
+    // step) casts many votes for many slightly different poses and would fill the list by itself, crowding
+    // out a smaller, partly hidden true instance.
     std::vector<PoseCandidate> out;
-    for (std::size_t i = 0; i < clusters.size() && static_cast<int>(i) < s.max_candidates; ++i)
-        out.push_back({clusters[i].rep.T_scene_model, clusters[i].votes});
+    std::vector<Eigen::Vector3d> centres;
+    for (const auto& cl : clusters) {
+        if (static_cast<int>(out.size()) >= s.max_candidates) break;
+        const Eigen::Vector3d c = cl.rep.T_scene_model * model.center();
+        int near = 0;
+        for (const auto& o : centres) near += (o - c).norm() < 0.25 * model.diameter();
+        if (near >= s.per_location) continue;
+        centres.push_back(c);
+        out.push_back({cl.rep.T_scene_model, cl.votes});
+    }
     return out;
 }
 

@@ -16,7 +16,8 @@ struct PpfSettings {
     int alpha_bins = 30;        ///< bins over 2 pi for the rotation about the normal (12 degrees each)
     int reference_stride = 4;   ///< every k-th scene point is a reference point
     double coplanar_deg = 8.0;  ///< a pair whose normals and joining line are within this of coplanar is skipped
-    int max_candidates = 12;    ///< pose clusters returned, most votes first
+    int max_candidates = 48;    ///< pose clusters returned, most votes first
+    int per_location = 2;       ///< at most this many candidates within a quarter diameter of each other
     double cluster_rotation_deg = 12.0;  ///< poses closer than this and cluster_distance join one cluster
     double cluster_distance = 0.0;       ///< (job units); 0: 2 * sampling
 };
@@ -30,6 +31,7 @@ public:
 
     const PpfSettings& settings() const { return settings_; }
     double diameter() const { return diameter_; }
+    const Eigen::Vector3d& center() const { return center_; }
     std::size_t size() const { return points_.size(); }
 
     /// Feature key of an oriented pair, or -1 for a pair that is skipped (too close, coplanar).
@@ -50,6 +52,7 @@ private:
     PpfSettings settings_;
     std::vector<Eigen::Vector3d> points_, normals_;
     double diameter_ = 0.0;
+    Eigen::Vector3d center_ = Eigen::Vector3d::Zero();
     int distance_bins_ = 0;
     std::vector<std::uint32_t> offsets_;  ///< CSR: entries of key k are entries_[offsets_[k], offsets_[k+1])
     std::vector<Entry> entries_;

@@ -1,67 +1,166 @@
 #include "partloc/core/verify.hpp"
 
-#include <open3d/geometry/KDTreeFlann.h>
-#include <open3d/geometry/PointCloud.h>
-
 #include <Eigen/Eigenvalues>
 #include <cmath>
+#include <limits>
+#include <unordered_map>
 
 namespace partloc {
+
+namespace {
+
+// Gnomonic projection about the ray from the eye to the model's centre: small, singularity-free bins.
+struct RayBins {
+    Eigen::Vector3d eye, a, e1, e2;
+    double beta;  // bin width as tan(angle)
+    bool bin(const Eigen::Vector3d& p, std::int64_t* key, double* range) const {
+        const Eigen::Vector3d d = p - eye;
+        const double z = d.dot(a);
+        if (z <= 0) return false;
+        const auto ix = static_cast<std::int64_t>(std::floor(d.dot(e1) / z / beta));
+        const auto iy = static_cast<std::int64_t>(std::floor(d.dot(e2) / z / beta));
+        *key = (ix + (1 << 30)) * (std::int64_t(1) << 31) + (iy + (1 << 30));
+        *range = d.norm();
+        return true;
+    }
+};
+
+struct BinState {
+    double model_range = std::numeric_limits<double>::infinity();
+    std::size_t sample = 0;  // the model sample the scanner would see in this bin
+    bool facing = false;
+    bool on = false, behind = false, crowded = false, front = false;
+};
+
+}  // namespace
 
 Verification verify_pose(const std::vector<Eigen::Vector3d>& scan_points, const Surface& model,
                          const Eigen::Isometry3d& T_model_scan, const Eigen::Vector3d& viewpoint_scan,
                          const VerifySettings& s) {
     Verification v;
-    if (scan_points.empty() || model.points.empty()) return v;
+    if (model.points.empty()) return v;
     const double L = std::max(model.diameter / 2.0, 1e-12);
-    const double lateral_max = s.lateral_factor * std::max(model.spacing, s.inlier_distance);
 
-    auto cloud = std::make_shared<open3d::geometry::PointCloud>();
-    cloud->points_.reserve(scan_points.size());
-    for (const auto& p : scan_points) cloud->points_.push_back(T_model_scan * p);
+    std::vector<Eigen::Vector3d> pts;
+    pts.reserve(scan_points.size());
+    for (const auto& p : scan_points) pts.push_back(T_model_scan * p);
 
+    // Points on the surface: residuals, and how well they fix the pose.
     double r2 = 0.0;
     Matrix6d Jn = Matrix6d::Zero();
-    for (const auto& p : cloud->points_) {
+    Eigen::Matrix3d N = Eigen::Matrix3d::Zero();
+    const Eigen::Vector3d eye = T_model_scan * viewpoint_scan;
+    const double reach = std::max(4.0 * model.spacing, 0.05 * model.diameter);
+    std::vector<int> knn_idx;
+    std::vector<double> knn_d2;
+    for (const auto& p : pts) {
         double d2 = 0;
         const int k = model.nearest(p, &d2);
         if (k < 0) continue;
         const Eigen::Vector3d& n = model.normals[k];
         const Eigen::Vector3d d = p - model.points[k];
         const double along = d.dot(n);
-        if (std::sqrt(d2) <= s.inlier_distance) {
-            ++v.inliers;
-            r2 += along * along;
-            Vector6d J;
-            J << p.cross(n), n;
-            v.JtJ.noalias() += J * J.transpose();
-            Vector6d Jc;
-            Jc << (p - model.center).cross(n) / L, n;
-            Jn.noalias() += Jc * Jc.transpose();
-        } else if (along < -s.inlier_distance && along > -L &&
-                   (d - along * n).norm() <= lateral_max) {
-            ++v.inside;  // straight behind a model face: the scanner saw through solid material
+        if (d2 > s.inlier_distance * s.inlier_distance) {
+            // A face that the scanner sees, continued past the model's edge: the model ends where the
+            // surface does not (a model sunk flush into a larger body, or a smaller look-alike). At a convex
+            // edge the nearest sample may lie on the other face, so look at a few.
+            if (d2 > reach * reach) continue;
+            model.tree->SearchKNN(p, 8, knn_idx, knn_d2);
+            for (int j : knn_idx) {
+                const Eigen::Vector3d& nj = model.normals[j];
+                const Eigen::Vector3d dj = p - model.points[j];
+                const double aj = dj.dot(nj);
+                if (std::abs(aj) <= s.inlier_distance && (eye - model.points[j]).dot(nj) > 0) {
+                    ++v.overflow;
+                    break;
+                }
+            }
+            continue;
         }
+        ++v.inliers;
+        r2 += along * along;
+        Vector6d J;
+        J << p.cross(n), n;
+        v.JtJ.noalias() += J * J.transpose();
+        Vector6d Jc;
+        Jc << (p - model.center).cross(n) / L, n;
+        Jn.noalias() += Jc * Jc.transpose();
+        N.noalias() += n * n.transpose();
     }
     if (v.inliers) {
         v.rmse = std::sqrt(r2 / v.inliers);
         Eigen::SelfAdjointEigenSolver<Matrix6d> es(Jn / static_cast<double>(v.inliers));
         v.conditioning = std::max(0.0, es.eigenvalues()(0));
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> en(N / static_cast<double>(v.inliers));
+        v.spread = std::max(0.0, en.eigenvalues()(0));
     }
-    v.violation = static_cast<double>(v.inside) / std::max<std::size_t>(1, v.inside + v.inliers);
 
-    open3d::geometry::KDTreeFlann tree(*cloud);
-    const Eigen::Vector3d eye = T_model_scan * viewpoint_scan;
-    std::vector<int> idx(1);
-    std::vector<double> dd(1);
-    const double c2 = s.cover_distance * s.cover_distance;
+    // Along the scanner's rays: the model's visible surface (a z-buffer of its samples) against the returns.
+    RayBins rb;
+    rb.eye = eye;
+    const Eigen::Vector3d to_model = model.center - rb.eye;
+    const double dist = to_model.norm();
+    if (dist < 1e-12) return v;
+    rb.a = to_model / dist;
+    rb.e1 = rb.a.unitOrthogonal();
+    rb.e2 = rb.a.cross(rb.e1);
+    rb.beta = s.bin_size / dist;
+    std::unordered_map<std::int64_t, BinState> bins;
+    bins.reserve(model.points.size());
+    std::int64_t key;
+    double range;
     for (std::size_t i = 0; i < model.points.size(); ++i) {
-        const Eigen::Vector3d to_eye = eye - model.points[i];
-        if (to_eye.dot(model.normals[i]) <= s.facing_cos * to_eye.norm()) continue;
-        ++v.visible;
-        if (tree.SearchKNN(model.points[i], 1, idx, dd) == 1 && dd[0] <= c2) ++v.covered;
+        if (!rb.bin(model.points[i], &key, &range)) continue;
+        BinState& b = bins[key];
+        if (range < b.model_range) {
+            b.model_range = range;
+            b.sample = i;
+            const Eigen::Vector3d ray = (model.points[i] - rb.eye) / range;
+            b.facing = -ray.dot(model.normals[i]) > s.facing_cos;
+        }
     }
-    v.coverage = v.visible ? static_cast<double>(v.covered) / v.visible : 0.0;
+    // On or off the surface by the distance to the visible sample's tangent plane (a bin spans a range of
+    // depths on an inclined face); in front or behind by the range along the ray.
+    const double tol = s.inlier_distance;
+    // Something that hides the model must stand clear of it: a surface just in front of the model's
+    // surface is the model's own material in another place, i.e. the pose is wrong (a block of the same
+    // heights turned, say).
+    const double near = std::max(4.0 * tol, s.near_fraction * model.diameter);
+    for (const auto& p : pts) {
+        if (!rb.bin(p, &key, &range)) continue;
+        const auto it = bins.find(key);
+        if (it == bins.end()) continue;
+        BinState& b = it->second;
+        const double delta = range - b.model_range;
+        const double off = std::abs((p - model.points[b.sample]).dot(model.normals[b.sample]));
+        if (off <= tol && std::abs(delta) <= tol + s.bin_size) b.on = true;
+        else if (delta > 0) b.behind = true;
+        else if (delta < -near) b.front = true;
+        else b.crowded = true;
+    }
+    // Only a bin inside the model's outline can contradict it: at the outline a bin straddles the model's
+    // edge and the background behind it.
+    auto interior = [&](std::int64_t k, const BinState& b) {
+        const std::int64_t step = std::int64_t(1) << 31;
+        for (std::int64_t nk : {k - 1, k + 1, k - step, k + step}) {
+            const auto it = bins.find(nk);
+            if (it == bins.end() || std::abs(it->second.model_range - b.model_range) > 3.0 * s.bin_size) return false;
+        }
+        return true;
+    };
+    for (const auto& [k, b] : bins) {
+        if (!b.facing) continue;
+        if (b.on) ++v.observed;
+        else if (!interior(k, b)) ++v.occluded;
+        else if (b.crowded) ++v.crowded;
+        else if (b.behind && !b.front) ++v.seen_through;
+        else if (b.front) ++v.occluded;
+        else ++v.missing;
+    }
+    const std::size_t judged = v.observed + v.seen_through + v.crowded + v.missing;
+    v.coverage = judged ? static_cast<double>(v.observed) / judged : 0.0;
+    v.violation = static_cast<double>(v.seen_through + v.crowded) /
+                  std::max<std::size_t>(1, v.observed + v.seen_through + v.crowded);
     return v;
 }
 

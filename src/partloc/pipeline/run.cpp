@@ -9,6 +9,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <optional>
 #include <stdexcept>
 
@@ -134,48 +135,93 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         }
         const Eigen::Vector3d viewpoint = estimate_viewpoint(*scan.points, work[i].scale.spacing);
         const PreparedScan ps = prepare_scan(*scan.points, work[i].scale, sampling, viewpoint);
-        for (const auto& m : models) r.fits.push_back(localize_model(ps, m, ls));
+        std::vector<std::vector<FiducialFit>> candidates(models.size());
+        for (std::size_t k = 0; k < models.size(); ++k) {
+            candidates[k] = fit_candidates(ps, models[k], ls);
+            if (candidates[k].empty()) {
+                FiducialFit none;
+                none.fiducial = models[k].name;
+                none.reason = "no candidate pose: nothing in the scan is shaped like this fiducial";
+                r.fits.push_back(none);
+            } else {
+                r.fits.push_back(candidates[k].front());
+            }
+        }
 
-        // The best fiducial wins (§3.4.1); other accepted fiducials must agree with it.
-        int best = -1;
-        for (std::size_t k = 0; k < r.fits.size(); ++k)
-            if (r.fits[k].accepted &&
-                (best < 0 || r.fits[k].inliers * r.fits[k].score > r.fits[best].inliers * r.fits[best].score))
-                best = static_cast<int>(k);
-        if (best < 0) {
+        // Every candidate that passed its own checks is a hypothesis for where the scanner was. The fiducials
+        // are a rigid constellation of known poses, so a hypothesis predicts every fiducial in the scan: any
+        // predicted fiducial the scanner saw through refutes it (a block of like shape elsewhere, or a
+        // fiducial that moved). Among the rest, the one that explains most points wins (§3.4.1: the best
+        // fiducial wins, here the best constellation).
+        struct Hypothesis {
+            Eigen::Isometry3d T_machine_scan;
+            double support = 0.0;
+            std::vector<std::string> names;
+            std::string refuted;
+            const FiducialFit* source = nullptr;
+        };
+        std::vector<Hypothesis> hyps;
+        for (std::size_t k = 0; k < models.size(); ++k)
+            for (const auto& c : candidates[k]) {
+                if (!c.accepted) continue;
+                Hypothesis h;
+                h.source = &c;
+                h.T_machine_scan = fiducial_at(job.machine, job.fiducials[k], scan.axes) * c.T_scan_fiducial.inverse();
+                for (std::size_t g = 0; g < models.size(); ++g) {
+                    const FiducialFit e =
+                        g == k ? c
+                               : evaluate_model(ps, models[g],
+                                                h.T_machine_scan.inverse() *
+                                                    fiducial_at(job.machine, job.fiducials[g], scan.axes),
+                                                ls);
+                    if (e.seen_through >= 20 && e.violation > 4.0 * ls.max_violation) {
+                        h.refuted = "with " + job.fiducials[k].name + " as found, the scan contradicts " +
+                                    fmt("%.0f%% of ", 100 * e.violation) + job.fiducials[g].name +
+                                    " where its probed pose puts it (a look-alike, or it moved or was probed wrong)";
+                        break;
+                    }
+                    if (e.accepted) {
+                        h.support += support(e);
+                        h.names.push_back(job.fiducials[g].name);
+                    }
+                }
+                if (std::getenv("PARTLOC_DEBUG")) {
+                    const Eigen::Vector3d t = h.T_machine_scan.translation();
+                    std::fprintf(stderr, "DEBUG %s hyp %s support %.0f names %zu T %.1f %.1f %.1f refuted: %s\n",
+                                 scan.file.c_str(), job.fiducials[k].name.c_str(), h.support, h.names.size(),
+                                 t.x(), t.y(), t.z(), h.refuted.c_str());
+                }
+                hyps.push_back(std::move(h));
+            }
+        const Hypothesis* top = nullptr;
+        for (const auto& h : hyps)
+            if (h.refuted.empty() && (!top || h.support > top->support)) top = &h;
+        if (!top) {
             r.message = "no fiducial fits:";
-            for (const auto& f : r.fits) r.message += " " + f.fiducial + ": " + f.reason + ";";
+            if (hyps.empty())
+                for (const auto& f : r.fits) r.message += " " + f.fiducial + ": " + f.reason + ";";
+            else
+                for (const auto& h : hyps) r.message += " " + h.refuted + ";";
             r.message.pop_back();
             return;
         }
-        auto machine_scan = [&](std::size_t k) {
-            return fiducial_at(job.machine, job.fiducials[k], scan.axes) * r.fits[k].T_scan_fiducial.inverse();
-        };
-        const Eigen::Isometry3d T_machine_scan = machine_scan(best);
-        std::vector<std::string> names{job.fiducials[best].name};
-        for (std::size_t k = 0; k < r.fits.size(); ++k) {
-            if (static_cast<int>(k) == best || !r.fits[k].accepted) continue;
-            // Compare where the two fixes put this fiducial: a disagreement beyond a few noise sigmas means
-            // a fiducial moved or was probed wrong, and neither can be trusted blindly.
-            const Eigen::Isometry3d T_fid = fiducial_at(job.machine, job.fiducials[k], scan.axes);
-            const Eigen::Isometry3d T_other = machine_scan(k) * r.fits[k].T_scan_fiducial;
-            const Eigen::Isometry3d T_best = T_machine_scan * r.fits[k].T_scan_fiducial;
-            const PoseError e = pose_error(T_other, T_best);
-            (void)T_fid;
-            const double tol = std::max(20.0 * r.noise, 0.5 * sampling);
-            if (e.translation > tol || e.rotation_deg > 1.0) {
-                r.message = "fiducials " + job.fiducials[best].name + " and " + job.fiducials[k].name +
-                            fmt(" disagree by %.3g (units) and %.3g deg: one of them moved or was probed wrong",
-                                e.translation, e.rotation_deg);
+        for (const auto& h : hyps) {
+            if (&h == top || !h.refuted.empty()) continue;
+            const PoseError e = pose_error(h.T_machine_scan, top->T_machine_scan);
+            if ((e.rotation_deg > 1.0 || e.translation > 5.0 * sampling) && h.support >= ls.ambiguity * top->support) {
+                r.message = "ambiguous: two placements of the scanner explain the scan about equally well" +
+                            fmt(" (%.3g deg, %.3g apart)", e.rotation_deg, e.translation);
                 return;
             }
-            names.push_back(job.fiducials[k].name);
         }
+        const Eigen::Isometry3d T_machine_scan = top->T_machine_scan;
         r.registered = true;
-        r.fiducials = names;
+        r.fiducials = top->names;
         r.T_machine_scan = T_machine_scan;
-        r.score = r.fits[best].score;
-        r.rmse = r.fits[best].rmse;
+        r.score = top->source->score;
+        r.rmse = top->source->rmse;
+        for (auto& f : r.fits)
+            if (f.fiducial == top->source->fiducial) f = *top->source;
 
         // This scan's workpiece points, moved to the workpiece at the reference axis position (§3.4.2).
         const Eigen::Isometry3d T_machine0_scan =
