@@ -34,12 +34,14 @@ PreparedScan prepare_scan(const open3d::geometry::PointCloud& points, const Scal
     s.viewpoint = viewpoint;
     s.cloud = std::make_shared<open3d::geometry::PointCloud>();
     s.cloud->points_ = points.points_;
-    // Normals from about 30 neighbours at the scan's own spacing; the scanner looks from the viewpoint, so
-    // every surface it saw faces it.
-    s.cloud->EstimateNormals(open3d::geometry::KDTreeSearchParamHybrid(3.5 * scale.spacing, 30));
-    s.cloud->OrientNormalsTowardsCameraLocation(s.viewpoint);
     s.tree = std::make_shared<open3d::geometry::KDTreeFlann>(*s.cloud);
-    const auto coarse = s.cloud->VoxelDownSample(sampling);
+    // Normals for the global fit on a grid of half its sampling (full resolution costs more and only adds
+    // noise the voxel average would remove); the scanner looks from the viewpoint, so every surface it saw
+    // faces it.
+    auto half = s.cloud->VoxelDownSample(0.5 * sampling);
+    half->EstimateNormals(open3d::geometry::KDTreeSearchParamHybrid(1.5 * sampling, 30));
+    half->OrientNormalsTowardsCameraLocation(s.viewpoint);
+    const auto coarse = half->VoxelDownSample(sampling);
     s.coarse_points = coarse->points_;
     s.coarse_normals = normalized(coarse->normals_);
     return s;
@@ -187,7 +189,7 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
     std::vector<Screened> screened;
     IcpSettings coarse = t.is;
     coarse.max_distances = {2.0 * s, 1.0 * s};
-    coarse.max_iterations = 15;
+    coarse.max_iterations = 10;
     VerifySettings quick = t.vs;
     quick.inlier_distance = std::max(t.vs.inlier_distance, 0.25 * s);  // before the fine fit
     const double radius = model.dense.diameter / 2.0 + 2.0 * s;
@@ -197,7 +199,7 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
         Screened c;
         c.local = points_near(scan, T_sm * model.dense.center, radius);
         if (c.local.size() < st.min_inliers) continue;
-        const auto sub = subsample(c.local, 3000);
+        const auto sub = subsample(c.local, 1500);
         const IcpResult icp = icp_point_to_plane(sub, model.dense, T_sm.inverse(), coarse);
         c.T_model_scan = icp.T_target_source;
         // Candidates that the coarse fit brought to one pose are one candidate.

@@ -26,14 +26,15 @@ struct Scale {
 
 /// A scan ready for fitting: its points, a search tree and a coarse oriented copy for the global fit.
 struct PreparedScan {
-    std::shared_ptr<open3d::geometry::PointCloud> cloud;  ///< valid points, scan frame
+    std::shared_ptr<open3d::geometry::PointCloud> cloud;  ///< valid points, scan frame (no normals)
     std::shared_ptr<open3d::geometry::KDTreeFlann> tree;
     std::vector<Eigen::Vector3d> coarse_points, coarse_normals;  ///< at the PPF sampling
     Eigen::Vector3d viewpoint = Eigen::Vector3d::Zero();           ///< scanner position, scan frame
     Scale scale;
 };
 
-/// Normals on the full scan (oriented to the viewpoint), then a voxel grid at `sampling` for the global fit.
+/// A search tree on the scan, and for the global fit a voxel grid at `sampling` with normals oriented to the
+/// viewpoint.
 PreparedScan prepare_scan(const open3d::geometry::PointCloud& points, const Scale& scale, double sampling,
                           const Eigen::Vector3d& viewpoint);
 
@@ -72,7 +73,7 @@ struct FiducialFit {
 };
 
 struct LocalizeSettings {
-    int candidates = 48;            ///< global-fit candidates screened by a coarse fit
+    int candidates = 32;            ///< global-fit candidates screened by a coarse fit
     int verified = 4;               ///< of those, the best refined finely and verified
     double min_coverage = 0.30;     ///< of the model surface facing the scanner
     double max_violation = 0.05;    ///< of nearby points seen inside the model

@@ -14,9 +14,9 @@ struct PpfSettings {
     double sampling = 0.0;      ///< distance step and point sampling (job units); required > 0
     int angle_bins = 15;        ///< bins over [0, pi] for the three feature angles (12 degrees each)
     int alpha_bins = 30;        ///< bins over 2 pi for the rotation about the normal (12 degrees each)
-    int reference_stride = 4;   ///< every k-th scene point is a reference point
+    int reference_stride = 8;   ///< every k-th scene point is a reference point
     double coplanar_deg = 8.0;  ///< a pair whose normals and joining line are within this of coplanar is skipped
-    int max_candidates = 48;    ///< pose clusters returned, most votes first
+    int max_candidates = 32;    ///< pose clusters returned, most votes first
     int per_location = 2;       ///< at most this many candidates within a quarter diameter of each other
     double cluster_rotation_deg = 12.0;  ///< poses closer than this and cluster_distance join one cluster
     double cluster_distance = 0.0;       ///< (job units); 0: 2 * sampling

@@ -2,7 +2,11 @@
 
 #include <open3d/geometry/BoundingVolume.h>
 
+#include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <random>
+#include <unordered_map>
 #include <stdexcept>
 
 namespace partloc {
@@ -44,13 +48,70 @@ double mesh_area(const open3d::geometry::TriangleMesh& mesh) {
 std::shared_ptr<open3d::geometry::PointCloud> sample_mesh(const open3d::geometry::TriangleMesh& mesh,
                                                           double spacing) {
     if (mesh.triangles_.empty()) throw std::invalid_argument("mesh has no triangles");
-    // A Poisson-disk set of radius r covers the area with about one sample per 0.7 r^2 (hexagonal packing
-    // of discs of radius r/2 has one sample per (sqrt(3)/2) r^2).
+    if (!(spacing > 0)) throw std::invalid_argument("sampling spacing must be > 0");
+    // Poisson-disk sampling by sample elimination (Yuksel 2015, as MeshLab's filter): dense uniform samples,
+    // then, in random order, each is kept unless a kept one lies within the disk radius. Our own because
+    // Open3D's SamplePointsPoissonDisk took 4 s for a 50 mm block at 0.5 mm (measured, 2 cores); a hash grid
+    // makes this linear. A maximal disk set of radius r has about one sample per 0.7 r^2 (the hexagonal
+    // packing bound is 0.87 r^2), so r is chosen to give one sample per `spacing`^2.
     const double area = mesh_area(mesh);
-    const auto n = static_cast<std::size_t>(std::max(100.0, area / (0.866 * spacing * spacing)));
+    const double r = spacing * std::sqrt(0.87);
+    const auto n_init = static_cast<std::size_t>(std::clamp(6.0 * area / (spacing * spacing), 100.0, 2.0e7));
     open3d::geometry::TriangleMesh copy(mesh);
     copy.ComputeTriangleNormals();
-    auto cloud = copy.SamplePointsPoissonDisk(n, 3.0, nullptr, true);
+    std::vector<double> cumulative(copy.triangles_.size());
+    double acc = 0.0;
+    for (std::size_t t = 0; t < copy.triangles_.size(); ++t) {
+        const auto& tri = copy.triangles_[t];
+        const Eigen::Vector3d& a = copy.vertices_[tri(0)];
+        acc += 0.5 * (copy.vertices_[tri(1)] - a).cross(copy.vertices_[tri(2)] - a).norm();
+        cumulative[t] = acc;
+    }
+    std::mt19937_64 rng(12345);  // models are sampled the same way every run
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    const double inv = 1.0 / r;
+    struct Key {
+        std::int64_t x, y, z;
+        bool operator==(const Key& o) const { return x == o.x && y == o.y && z == o.z; }
+    };
+    struct Hash {
+        std::size_t operator()(const Key& k) const {
+            return static_cast<std::size_t>(k.x * 73856093 ^ k.y * 19349663 ^ k.z * 83492791);
+        }
+    };
+    std::unordered_map<Key, std::vector<std::size_t>, Hash> grid;
+    auto cloud = std::make_shared<open3d::geometry::PointCloud>();
+    for (std::size_t i = 0; i < n_init; ++i) {
+        const double pick = u(rng) * acc;
+        const std::size_t t = static_cast<std::size_t>(
+            std::lower_bound(cumulative.begin(), cumulative.end(), pick) - cumulative.begin());
+        const auto& tri = copy.triangles_[std::min(t, copy.triangles_.size() - 1)];
+        double a = u(rng), b = u(rng);
+        if (a + b > 1.0) {
+            a = 1.0 - a;
+            b = 1.0 - b;
+        }
+        const Eigen::Vector3d& v0 = copy.vertices_[tri(0)];
+        const Eigen::Vector3d p = v0 + a * (copy.vertices_[tri(1)] - v0) + b * (copy.vertices_[tri(2)] - v0);
+        const Key k{static_cast<std::int64_t>(std::floor(p.x() * inv)), static_cast<std::int64_t>(std::floor(p.y() * inv)),
+                    static_cast<std::int64_t>(std::floor(p.z() * inv))};
+        bool free = true;
+        for (std::int64_t dx = -1; dx <= 1 && free; ++dx)
+            for (std::int64_t dy = -1; dy <= 1 && free; ++dy)
+                for (std::int64_t dz = -1; dz <= 1 && free; ++dz) {
+                    const auto it = grid.find({k.x + dx, k.y + dy, k.z + dz});
+                    if (it == grid.end()) continue;
+                    for (std::size_t j : it->second)
+                        if ((cloud->points_[j] - p).squaredNorm() < r * r) {
+                            free = false;
+                            break;
+                        }
+                }
+        if (!free) continue;
+        grid[k].push_back(cloud->points_.size());
+        cloud->points_.push_back(p);
+        cloud->normals_.push_back(copy.triangle_normals_[std::min(t, copy.triangles_.size() - 1)]);
+    }
     return cloud;
 }
 

@@ -227,12 +227,13 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         const Eigen::Isometry3d T_machine0_scan =
             job.machine.motion(job.workpiece.moves_with, scan.axes).inverse() * T_machine_scan;
         auto wp = std::make_shared<open3d::geometry::PointCloud>();
-        for (std::size_t k = 0; k < ps.cloud->points_.size(); ++k) {
-            const Eigen::Vector3d p = T_machine0_scan * ps.cloud->points_[k];
-            if (!region.contains(p)) continue;
-            wp->points_.push_back(p);
-            wp->normals_.push_back(T_machine0_scan.linear() * ps.cloud->normals_[k]);
+        for (const auto& q : ps.cloud->points_) {
+            const Eigen::Vector3d p = T_machine0_scan * q;
+            if (region.contains(p)) wp->points_.push_back(p);
         }
+        // Normals for the stock model, facing this scan's scanner.
+        wp->EstimateNormals(open3d::geometry::KDTreeSearchParamHybrid(3.5 * work[i].scale.spacing, 30));
+        wp->OrientNormalsTowardsCameraLocation(T_machine0_scan * ps.viewpoint);
         work[i].workpiece_points = wp;
         r.seconds = seconds_since(ts);
     });

@@ -1,0 +1,121 @@
+// `partloc run JOB --out DIR` (SPEC "Commands"): load and check the job, run it, write DIR, print a summary.
+#include "partloc/pipeline/run.hpp"
+
+#include <open3d/utility/Logging.h>
+
+#include <cstdio>
+#include <iostream>
+#include <sstream>
+
+#include "commands.hpp"
+#include "partloc/core/geometry.hpp"
+#include "partloc/io/job_io.hpp"
+#include "partloc/io/result_io.hpp"
+
+namespace partloc::cli {
+
+namespace {
+
+constexpr int kLocated = 0;
+constexpr int kFailed = 1;  // the output could not be written, or a fault in the program itself
+constexpr int kBadInput = 2;
+constexpr int kNotLocated = 3;
+
+/// The problem as one line on stderr: messages from yaml-cpp or the file system may hold line breaks.
+int complain(const std::string& message, int code) {
+    std::string line = message;
+    for (char& c : line)
+        if (c == '\n' || c == '\r') c = ' ';
+    std::cerr << "partloc: " << line << std::endl;
+    return code;
+}
+
+std::string fixed(double v, int decimals) {
+    char buffer[64];
+    std::snprintf(buffer, sizeof buffer, "%.*f", decimals, v);
+    return buffer;
+}
+
+std::string triple(const Eigen::Vector3d& v, int decimals) {
+    return "[" + fixed(v.x(), decimals) + ", " + fixed(v.y(), decimals) + ", " + fixed(v.z(), decimals) + "]";
+}
+
+void print_summary(std::ostream& out, const std::string& job_file, const Job& job, const JobResult& result) {
+    const std::string& u = job.units;
+    const int d = u == "m" ? 6 : u == "in" ? 4 : 3;
+    out << "partloc run " << job_file << ": " << job.scans.size() << " scans, " << job.fiducials.size()
+        << " fiducials, units " << u << "\n";
+    for (const ScanResult& s : result.scans) {
+        out << "  " << s.file << "  ";
+        if (s.registered) {
+            std::string fids;
+            for (const auto& f : s.fiducials) fids += (fids.empty() ? "" : ",") + f;
+            out << "registered by " << fids << "  score " << fixed(s.score, 2) << "  rmse "
+                << fixed(s.rmse, d) << " " << u << "\n";
+        } else {
+            out << "rejected: " << s.message << "\n";
+        }
+    }
+    const WorkpieceResult& w = result.workpiece;
+    if (!result.located) {
+        out << "workpiece: NOT LOCATED: " << w.message << "\n";
+        return;
+    }
+    const Eigen::Isometry3d& nominal = job.workpiece.T_machine_workpiece;
+    out << "workpiece: located  origin " << triple(w.T_machine_workpiece.translation(), d) << " " << u
+        << "  euler_xyz_deg " << triple(euler_xyz_deg(w.T_machine_workpiece.linear()), 3) << "\n";
+    const PoseError e = pose_error(w.T_machine_workpiece, nominal);
+    out << "  deviation from nominal: origin "
+        << triple(w.T_machine_workpiece.translation() - nominal.translation(), d) << " " << u << " ("
+        << fixed(e.translation, d) << "), rotation " << fixed(e.rotation_deg, 3) << " deg\n";
+    out << "  fit rmse " << fixed(w.rmse, d) << " " << u << " over " << w.points << " points\n";
+}
+
+}  // namespace
+
+int command_run(const std::string& job_file, const std::string& out_dir, int threads, std::uint64_t seed) {
+    open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
+
+    Job job;
+    try {
+        job = io::load_job(job_file, io::LoadOptions{threads});
+    } catch (const io::InputError& e) {
+        return complain(e.what(), kBadInput);
+    } catch (const std::exception& e) {
+        // Anything else that stops the job being read (a file system error, a file too big for memory) is
+        // still a problem with the input.
+        return complain(job_file + ": " + e.what(), kBadInput);
+    }
+    {
+        std::error_code ec;
+        if (std::filesystem::exists(out_dir, ec) && !std::filesystem::is_directory(out_dir, ec))
+            return complain(out_dir + ": --out names a file, not a folder", kBadInput);
+    }
+
+    JobResult result;
+    try {
+        RunSettings settings;
+        settings.threads = threads;
+        settings.seed = seed;
+        result = run_job(job, settings);
+    } catch (const std::invalid_argument& e) {
+        return complain(job_file + ": " + e.what(), kBadInput);
+    } catch (const std::exception& e) {
+        return complain(std::string("internal error: ") + e.what(), kFailed);
+    }
+
+    std::vector<std::filesystem::path> written;
+    try {
+        written = io::write_outputs(out_dir, job, result, job_file);
+    } catch (const std::exception& e) {
+        return complain(std::string("cannot write the output: ") + e.what(), kFailed);
+    }
+
+    print_summary(std::cout, job_file, job, result);
+    std::cout << "wrote";
+    for (const auto& p : written) std::cout << " " << p.string();
+    std::cout << std::endl;
+    return result.located ? kLocated : kNotLocated;
+}
+
+}  // namespace partloc::cli

@@ -1,0 +1,415 @@
+#include "partloc/io/job_io.hpp"
+
+#include <tbb/global_control.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+#include <yaml-cpp/yaml.h>
+
+#include <algorithm>
+#include <cmath>
+#include <exception>
+#include <functional>
+#include <initializer_list>
+#include <set>
+#include <sstream>
+
+#include "partloc/core/geometry.hpp"
+#include "partloc/io/cloud_io.hpp"
+#include "partloc/io/formats.hpp"
+
+namespace partloc::io {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+/// A file named in the job, and the factor from its units to the job's.
+struct FileRef {
+    std::string file;
+    double scale = 1.0;
+};
+
+/// One data file to read once the job is checked: read() fills its place in the Job.
+struct FileTask {
+    FileRef ref;
+    std::function<void(const fs::path&, const FileRef&)> read;
+};
+
+/// Walks the YAML tree; every error names the job file, the field path and the line.
+class JobParser {
+  public:
+    explicit JobParser(std::string job_name) : job_name_(std::move(job_name)) {}
+
+    /// Fills `job` and lists the data files to read into it; the tasks refer to `job`'s members.
+    void parse(const YAML::Node& root, Job& job, std::vector<FileTask>& tasks);
+
+  private:
+    [[noreturn]] void fail(const YAML::Node& node, const std::string& path,
+                           const std::string& problem) const {
+        std::string line;
+        if (node.IsDefined() && node.Mark().line >= 0)
+            line = " (line " + std::to_string(node.Mark().line + 1) + ")";
+        throw InputError(job_name_, path + ": " + problem + line);
+    }
+
+    static std::string describe(const YAML::Node& node) {
+        if (!node.IsDefined() || node.IsNull()) return "nothing";
+        if (node.IsSequence()) return "a list";
+        if (node.IsMap()) return "a mapping";
+        return "'" + node.Scalar().substr(0, 40) + "'";
+    }
+
+    /// Checks that `node` is a mapping with only `known` keys, each once.
+    void check_map(const YAML::Node& node, const std::string& path,
+                   std::initializer_list<const char*> known) const {
+        if (!node.IsMap()) fail(node, path, "expected a mapping, found " + describe(node));
+        std::set<std::string> seen;
+        for (auto it = node.begin(); it != node.end(); ++it) {
+            const std::string key = it->first.IsScalar() ? it->first.Scalar() : "?";
+            bool ok = false;
+            std::string list;
+            for (const char* k : known) {
+                ok = ok || key == k;
+                list += (list.empty() ? "" : ", ") + std::string(k);
+            }
+            const std::string at = path.empty() ? key : path + "." + key;
+            if (!ok) fail(it->first, at, "unknown field (known here: " + list + ")");
+            if (!seen.insert(key).second) fail(it->first, at, "given twice");
+        }
+    }
+
+    YAML::Node required(const YAML::Node& map, const std::string& path, const char* key) const {
+        const YAML::Node n = map[key];
+        if (!n.IsDefined() || n.IsNull()) fail(map, join(path, key), "missing");
+        return n;
+    }
+
+    static std::string join(const std::string& path, const std::string& key) {
+        return path.empty() ? key : path + "." + key;
+    }
+
+    double number(const YAML::Node& n, const std::string& path) const {
+        double v = 0;
+        if (!n.IsScalar()) fail(n, path, "expected a number, found " + describe(n));
+        const std::string& s = n.Scalar();
+        // YAML spells them .nan and .inf; parse_number knows nan and inf.
+        if (s == ".nan" || s == ".NaN" || s == ".NAN" || s == ".inf" || s == ".Inf" || s == "-.inf" ||
+            s == "+.inf" || !detail::parse_number(s, v))
+            fail(n, path, "expected a number, found " + describe(n));
+        if (!std::isfinite(v)) fail(n, path, "expected a finite number, found " + describe(n));
+        return v;
+    }
+
+    double number_at_least(const YAML::Node& n, const std::string& path, double min, bool strict) const {
+        const double v = number(n, path);
+        if (strict ? !(v > min) : !(v >= min))
+            fail(n, path, std::string("must be ") + (strict ? "greater than " : "at least ") + format(min));
+        return v;
+    }
+
+    static std::string format(double v) {
+        std::ostringstream s;
+        s << v;
+        return s.str();
+    }
+
+    Eigen::Vector3d vector3(const YAML::Node& n, const std::string& path) const {
+        if (!n.IsSequence() || n.size() != 3)
+            fail(n, path,
+                 "expected 3 numbers, found " +
+                     (n.IsSequence() ? std::to_string(n.size()) + " items" : describe(n)));
+        Eigen::Vector3d v;
+        for (int i = 0; i < 3; ++i) v[i] = number(n[i], path + "[" + std::to_string(i) + "]");
+        return v;
+    }
+
+    std::string text(const YAML::Node& n, const std::string& path) const {
+        if (!n.IsScalar() || n.Scalar().empty()) fail(n, path, "expected a name, found " + describe(n));
+        return n.Scalar();
+    }
+
+    double unit_scale(const YAML::Node& n, const std::string& path) const {
+        const std::string units = text(n, path);
+        try {
+            return millimetres_per_unit(units);
+        } catch (const std::invalid_argument& e) {
+            fail(n, path, e.what());
+        }
+    }
+
+    FileRef file_ref(const YAML::Node& n, const std::string& path) const {
+        if (n.IsScalar()) return {text(n, path), 1.0};
+        check_map(n, path, {"file", "units"});
+        FileRef ref{text(required(n, path, "file"), join(path, "file")), 1.0};
+        if (n["units"].IsDefined())
+            ref.scale = unit_scale(n["units"], join(path, "units")) / job_mm_per_unit_;
+        return ref;
+    }
+
+    Eigen::Isometry3d pose(const YAML::Node& n, const std::string& path) const {
+        if (n.IsMap() && n["matrix"].IsDefined()) {
+            check_map(n, path, {"matrix"});
+            const YAML::Node m = n["matrix"];
+            const std::string at = join(path, "matrix");
+            if (!m.IsSequence() || m.size() != 4)
+                fail(m, at,
+                     "expected 4 rows of 4 numbers, found " +
+                         (m.IsSequence() ? std::to_string(m.size()) + " rows" : describe(m)));
+            Eigen::Matrix4d M;
+            for (int r = 0; r < 4; ++r) {
+                const std::string row = at + "[" + std::to_string(r) + "]";
+                if (!m[r].IsSequence() || m[r].size() != 4)
+                    fail(m[r], row,
+                         "expected 4 numbers, found " +
+                             (m[r].IsSequence() ? std::to_string(m[r].size()) + " items" : describe(m[r])));
+                for (int c = 0; c < 4; ++c) M(r, c) = number(m[r][c], row + "[" + std::to_string(c) + "]");
+            }
+            try {
+                return checked_isometry(M, at);
+            } catch (const std::invalid_argument& e) {
+                const std::string what = e.what();
+                fail(m, at, what.substr(std::min(what.size(), at.size() + 2)));
+            }
+        }
+        check_map(n, path, {"origin", "euler_xyz_deg"});
+        const Eigen::Vector3d origin = vector3(required(n, path, "origin"), join(path, "origin"));
+        const Eigen::Vector3d euler = n["euler_xyz_deg"].IsDefined()
+                                          ? vector3(n["euler_xyz_deg"], join(path, "euler_xyz_deg"))
+                                          : Eigen::Vector3d::Zero();
+        return pose_from_origin_euler(origin, euler);
+    }
+
+    void check_axis(const YAML::Node& n, const std::string& path, const std::string& axis) const {
+        if (machine_.find(axis)) return;
+        fail(n, path,
+             "machine.axes has no axis '" + axis + "'" +
+                 (machine_.axes.empty() ? " (the job has no machine block)" : ""));
+    }
+
+    std::vector<std::string> axis_chain(const YAML::Node& n, const std::string& path) const {
+        std::vector<std::string> chain;
+        if (!n.IsDefined() || n.IsNull()) return chain;
+        if (!n.IsSequence()) fail(n, path, "expected a list of axis names, found " + describe(n));
+        for (std::size_t i = 0; i < n.size(); ++i) {
+            const std::string at = path + "[" + std::to_string(i) + "]";
+            const std::string axis = text(n[i], at);
+            check_axis(n[i], at, axis);
+            for (const auto& a : chain)
+                if (a == axis) fail(n[i], at, "axis '" + axis + "' named twice");
+            chain.push_back(axis);
+        }
+        return chain;
+    }
+
+    AxisValues axis_values(const YAML::Node& n, const std::string& path) const {
+        AxisValues q;
+        if (!n.IsDefined() || n.IsNull()) return q;
+        if (!n.IsMap()) fail(n, path, "expected a mapping of axis name to value, found " + describe(n));
+        for (auto it = n.begin(); it != n.end(); ++it) {
+            const std::string axis = text(it->first, path);
+            const std::string at = join(path, axis);
+            check_axis(it->first, at, axis);
+            if (q.count(axis)) fail(it->first, at, "given twice");
+            q[axis] = number(it->second, at);
+        }
+        return q;
+    }
+
+    Machine machine(const YAML::Node& n) const {
+        Machine m;
+        if (!n.IsDefined() || n.IsNull()) return m;
+        check_map(n, "machine", {"axes"});
+        const YAML::Node axes = n["axes"];
+        if (!axes.IsDefined() || axes.IsNull()) return m;
+        if (!axes.IsSequence())
+            fail(axes, "machine.axes", "expected a list of axes, found " + describe(axes));
+        for (std::size_t i = 0; i < axes.size(); ++i) {
+            const YAML::Node a = axes[i];
+            const std::string at = "machine.axes[" + std::to_string(i) + "]";
+            check_map(a, at, {"name", "type", "direction", "point"});
+            Axis axis;
+            axis.name = text(required(a, at, "name"), at + ".name");
+            if (m.find(axis.name)) fail(a["name"], at + ".name", "axis '" + axis.name + "' defined twice");
+            const std::string type = text(required(a, at, "type"), at + ".type");
+            if (type == "linear")
+                axis.type = AxisType::Linear;
+            else if (type == "rotary")
+                axis.type = AxisType::Rotary;
+            else
+                fail(a["type"], at + ".type", "expected linear or rotary, found '" + type + "'");
+            const Eigen::Vector3d d = vector3(required(a, at, "direction"), at + ".direction");
+            if (d.norm() < 1e-9) fail(a["direction"], at + ".direction", "must not be zero");
+            axis.direction = d.normalized();
+            if (axis.type == AxisType::Rotary)
+                axis.point = vector3(required(a, at, "point"), at + ".point");
+            else if (a["point"].IsDefined())
+                axis.point = vector3(a["point"], at + ".point");
+            m.axes.push_back(axis);
+        }
+        return m;
+    }
+
+    std::string job_name_;
+    double job_mm_per_unit_ = 1.0;
+    Machine machine_;
+};
+
+void JobParser::parse(const YAML::Node& root, Job& job, std::vector<FileTask>& tasks) {
+    if (!root.IsDefined() || root.IsNull()) throw InputError(job_name_, "the job file is empty");
+    if (!root.IsMap())
+        throw InputError(job_name_, "expected a mapping with units, fiducials, workpiece and scans, found " +
+                                        describe(root));
+    check_map(root, "",
+              {"units", "scanner", "machine", "fiducials", "workpiece", "scans", "name", "description"});
+
+    if (root["units"].IsDefined()) {
+        job_mm_per_unit_ = unit_scale(root["units"], "units");
+        job.units = root["units"].Scalar();
+    }
+
+    if (const YAML::Node s = root["scanner"]; s.IsDefined() && !s.IsNull()) {
+        check_map(s, "scanner", {"point_spacing", "noise"});
+        if (s["point_spacing"].IsDefined())
+            job.scanner.point_spacing = number_at_least(s["point_spacing"], "scanner.point_spacing", 0, true);
+        if (s["noise"].IsDefined())
+            job.scanner.noise = number_at_least(s["noise"], "scanner.noise", 0, false);
+    }
+
+    machine_ = machine(root["machine"]);
+    job.machine = machine_;
+
+    const YAML::Node fiducials = required(root, "", "fiducials");
+    if (!fiducials.IsSequence() || fiducials.size() == 0)
+        fail(fiducials, "fiducials",
+             "expected a list of one or more fiducials, found " + describe(fiducials));
+    job.fiducials.resize(fiducials.size());
+    for (std::size_t i = 0; i < fiducials.size(); ++i) {
+        const YAML::Node f = fiducials[i];
+        const std::string at = "fiducials[" + std::to_string(i) + "]";
+        check_map(f, at, {"name", "model", "pose", "probed_at", "moves_with", "pose_sigma"});
+        Fiducial& fid = job.fiducials[i];
+        fid.name = text(required(f, at, "name"), at + ".name");
+        for (std::size_t j = 0; j < i; ++j)
+            if (job.fiducials[j].name == fid.name)
+                fail(f["name"], at + ".name",
+                     "fiducial name '" + fid.name + "' is already used by fiducials[" + std::to_string(j) +
+                         "]");
+        const FileRef model = file_ref(required(f, at, "model"), at + ".model");
+        fid.T_machine_fiducial = pose(required(f, at, "pose"), at + ".pose");
+        fid.probed_at = axis_values(f["probed_at"], at + ".probed_at");
+        fid.moves_with = axis_chain(f["moves_with"], at + ".moves_with");
+        if (f["pose_sigma"].IsDefined())
+            fid.pose_sigma = number_at_least(f["pose_sigma"], at + ".pose_sigma", 0, false);
+        tasks.push_back({model, [&fid](const fs::path& p, const FileRef& r) {
+                             fid.model = read_model(p, r.file, r.scale);
+                         }});
+    }
+
+    const YAML::Node w = required(root, "", "workpiece");
+    check_map(w, "workpiece", {"reference_surfaces", "datum", "final_part", "moves_with", "region"});
+    const FileRef reference =
+        file_ref(required(w, "workpiece", "reference_surfaces"), "workpiece.reference_surfaces");
+    tasks.push_back({reference, [&job](const fs::path& p, const FileRef& r) {
+                         job.workpiece.reference_surfaces = read_model(p, r.file, r.scale);
+                     }});
+    if (w["datum"].IsDefined()) job.workpiece.T_machine_workpiece = pose(w["datum"], "workpiece.datum");
+    if (w["final_part"].IsDefined() && !w["final_part"].IsNull()) {
+        const FileRef part = file_ref(w["final_part"], "workpiece.final_part");
+        tasks.push_back({part, [&job](const fs::path& p, const FileRef& r) {
+                             job.workpiece.final_part = read_model(p, r.file, r.scale);
+                         }});
+    }
+    job.workpiece.moves_with = axis_chain(w["moves_with"], "workpiece.moves_with");
+    if (const YAML::Node r = w["region"]; r.IsDefined() && !r.IsNull()) {
+        check_map(r, "workpiece.region", {"min", "max"});
+        const Eigen::Vector3d lo = vector3(required(r, "workpiece.region", "min"), "workpiece.region.min");
+        const Eigen::Vector3d hi = vector3(required(r, "workpiece.region", "max"), "workpiece.region.max");
+        if ((hi - lo).minCoeff() <= 0)
+            fail(r, "workpiece.region", "max must be greater than min on every axis");
+        job.workpiece.region = Eigen::AlignedBox3d(lo, hi);
+    }
+
+    const YAML::Node scans = required(root, "", "scans");
+    if (!scans.IsSequence() || scans.size() == 0)
+        fail(scans, "scans", "expected a list of one or more scans, found " + describe(scans));
+    job.scans.resize(scans.size());
+    for (std::size_t i = 0; i < scans.size(); ++i) {
+        const YAML::Node s = scans[i];
+        const std::string at = "scans[" + std::to_string(i) + "]";
+        Scan& scan = job.scans[i];
+        FileRef ref;
+        if (s.IsScalar()) {
+            ref = file_ref(s, at);
+        } else {
+            // {file, units, axes}: the file entry's units sit beside its axes.
+            check_map(s, at, {"file", "units", "axes"});
+            ref.file = text(required(s, at, "file"), at + ".file");
+            if (s["units"].IsDefined()) ref.scale = unit_scale(s["units"], at + ".units") / job_mm_per_unit_;
+            scan.axes = axis_values(s["axes"], at + ".axes");
+        }
+        scan.file = ref.file;
+        tasks.push_back({ref, [&scan](const fs::path& p, const FileRef& r) {
+                             scan.points = read_point_cloud(p, r.file, r.scale);
+                         }});
+    }
+}
+
+std::string read_job_text(const fs::path& job_file, const std::string& name) {
+    try {
+        return detail::read_file_bytes(job_file, name);
+    } catch (const InputError& e) {
+        if (e.problem() == "file is empty") throw InputError(name, "the job file is empty");
+        throw;
+    }
+}
+
+}  // namespace
+
+Job load_job(const fs::path& job_file, const LoadOptions& options) {
+    const std::string name = job_file.string();
+    const std::string text = read_job_text(job_file, name);
+    YAML::Node root;
+    try {
+        root = YAML::Load(text);
+    } catch (const YAML::Exception& e) {
+        throw InputError(name, "not valid YAML or JSON: " + e.msg + " (line " +
+                                   std::to_string(e.mark.line + 1) + ", column " +
+                                   std::to_string(e.mark.column + 1) + ")");
+    }
+
+    Job job;
+    std::vector<FileTask> tasks;
+    JobParser parser(name);
+    try {
+        parser.parse(root, job, tasks);
+    } catch (const YAML::Exception& e) {
+        // yaml-cpp throws on what the checks above did not foresee; still one line naming the job file.
+        throw InputError(name, "malformed job: " + e.msg + " (line " + std::to_string(e.mark.line + 1) + ")");
+    }
+
+    // Each task fills its own place in `job`, so the result does not depend on the order they finish in; of
+    // several bad files the first in the job is reported.
+    const fs::path base = job_file.parent_path();
+    std::vector<std::exception_ptr> errors(tasks.size());
+    const auto run = [&](std::size_t i) {
+        try {
+            fs::path path = tasks[i].ref.file;
+            if (path.is_relative()) path = base / path;
+            tasks[i].read(path, tasks[i].ref);
+        } catch (...) {
+            errors[i] = std::current_exception();
+        }
+    };
+    // TBB prints a warning when an arena asks for more threads than the process allows; library code must
+    // not print, so ask for no more.
+    const int allowed =
+        static_cast<int>(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism));
+    tbb::task_arena arena(options.threads > 0 ? std::min(options.threads, allowed)
+                                              : tbb::task_arena::automatic);
+    arena.execute([&] { tbb::parallel_for(std::size_t(0), tasks.size(), run); });
+    for (const auto& e : errors)
+        if (e) std::rethrow_exception(e);
+    return job;
+}
+
+}  // namespace partloc::io

@@ -1,0 +1,207 @@
+#include "partloc/io/result_io.hpp"
+
+#include <cmath>
+#include <nlohmann/json.hpp>
+
+#include "partloc/core/geometry.hpp"
+#include "partloc/io/atomic_file.hpp"
+#include "partloc/io/cloud_io.hpp"
+#include "partloc/io/report_html.hpp"
+
+namespace partloc::io {
+
+namespace fs = std::filesystem;
+using Json = nlohmann::ordered_json;  // keeps SPEC's field order
+
+namespace {
+
+/// Rounded to 1e-9 so that cos(90°) prints as 0, not 6.1e-17; non-finite becomes null.
+Json number(double v) {
+    if (!std::isfinite(v)) return nullptr;
+    const double r = std::round(v * 1e9) / 1e9;
+    return r == 0.0 ? 0.0 : r;  // no "-0.0"
+}
+
+Json vector3(const Eigen::Vector3d& v) { return Json::array({number(v.x()), number(v.y()), number(v.z())}); }
+
+Json matrix(const Eigen::Isometry3d& T) {
+    Json rows = Json::array();
+    for (int r = 0; r < 4; ++r) {
+        Json row = Json::array();
+        for (int c = 0; c < 4; ++c) row.push_back(number(T.matrix()(r, c)));
+        rows.push_back(row);
+    }
+    return rows;
+}
+
+double wrap_deg(double a) {
+    a = std::fmod(a, 360.0);
+    if (a > 180.0) a -= 360.0;
+    if (a <= -180.0) a += 360.0;
+    return a;
+}
+
+Json fit_json(const FiducialFit& f) {
+    Json j;
+    j["fiducial"] = f.fiducial;
+    j["accepted"] = f.accepted;
+    j["reason"] = f.reason;
+    j["T_scan_fiducial"] = matrix(f.T_scan_fiducial);
+    j["rmse"] = number(f.rmse);
+    j["coverage"] = number(f.coverage);
+    j["violation"] = number(f.violation);
+    j["conditioning"] = number(f.conditioning);
+    j["score"] = number(f.score);
+    j["inliers"] = f.inliers;
+    return j;
+}
+
+Json scan_json(const ScanResult& s, const Scan* scan) {
+    Json j;
+    j["file"] = !s.file.empty() || !scan ? s.file : scan->file;
+    j["status"] = s.registered ? "registered" : "rejected";
+    j["fiducials"] = s.fiducials;
+    j["score"] = number(s.score);
+    j["rmse"] = number(s.rmse);
+    j["T_machine_scan"] = s.registered ? matrix(s.T_machine_scan) : Json(nullptr);
+    j["message"] = s.message;
+    Json axes = Json::object();
+    if (scan)
+        for (const auto& [name, value] : scan->axes) axes[name] = number(value);
+    j["axes"] = axes;
+    j["points"] = s.points;
+    j["point_spacing"] = number(s.point_spacing);
+    j["noise"] = number(s.noise);
+    j["seconds"] = number(s.seconds);
+    Json fits = Json::array();
+    for (const auto& f : s.fits) fits.push_back(fit_json(f));
+    j["fits"] = fits;
+    return j;
+}
+
+Json pose_json(const Eigen::Isometry3d& T) {
+    Json j;
+    j["T_machine_workpiece"] = matrix(T);
+    j["origin"] = vector3(T.translation());
+    j["euler_xyz_deg"] = vector3(euler_xyz_deg(T.linear()));
+    return j;
+}
+
+Json workpiece_json(const Job& job, const WorkpieceResult& w) {
+    const Eigen::Isometry3d& nominal = job.workpiece.T_machine_workpiece;
+    Json j;
+    if (w.located) {
+        j = pose_json(w.T_machine_workpiece);
+        const Eigen::Vector3d e_loc = euler_xyz_deg(w.T_machine_workpiece.linear());
+        const Eigen::Vector3d e_nom = euler_xyz_deg(nominal.linear());
+        Eigen::Vector3d de;
+        for (int i = 0; i < 3; ++i) de[i] = wrap_deg(e_loc[i] - e_nom[i]);
+        const PoseError err = pose_error(w.T_machine_workpiece, nominal);
+        j["deviation"] = {{"origin", vector3(w.T_machine_workpiece.translation() - nominal.translation())},
+                          {"euler_xyz_deg", vector3(de)},
+                          {"translation", number(err.translation)},
+                          {"rotation_deg", number(err.rotation_deg)}};
+    } else {
+        j["T_machine_workpiece"] = nullptr;
+        j["origin"] = nullptr;
+        j["euler_xyz_deg"] = nullptr;
+        j["deviation"] = nullptr;
+    }
+    j["rmse"] = number(w.rmse);
+    j["points"] = w.points;
+    j["inliers"] = w.inliers;
+    j["located"] = w.located;
+    j["message"] = w.message;
+    j["nominal"] = pose_json(nominal);
+    return j;
+}
+
+/// JSON text with every array of plain numbers on one line, so a 4x4 matrix reads as four rows.
+std::string compact_number_arrays(const std::string& text) {
+    std::string out;
+    out.reserve(text.size());
+    bool in_string = false;
+    for (std::size_t i = 0; i < text.size(); ++i) {
+        if (in_string) {
+            if (text[i] == '\\')
+                out += text[i++];  // the escaped character follows as it is
+            else if (text[i] == '"')
+                in_string = false;
+        } else if (text[i] == '"') {
+            in_string = true;
+        } else if (text[i] == '[') {
+            const std::size_t end = text.find_first_of("[]{\"", i + 1);
+            if (end != std::string::npos && text[end] == ']') {
+                out += '[';
+                bool space = false;
+                for (std::size_t k = i + 1; k < end; ++k) {
+                    const char c = text[k];
+                    if (c == ' ' || c == '\n') {
+                        space = true;
+                        continue;
+                    }
+                    if (space && out.back() == ',') out += ' ';
+                    space = false;
+                    out += c;
+                }
+                out += ']';
+                i = end;
+                continue;
+            }
+        }
+        out += text[i];
+    }
+    return out;
+}
+
+/// Removes a file of an earlier run that this run does not produce, so the folder tells one story.
+void remove_stale(const fs::path& path) {
+    std::error_code ec;
+    fs::remove(path, ec);
+}
+
+}  // namespace
+
+std::string result_json(const Job& job, const JobResult& result) {
+    Json j;
+    j["status"] = result.located ? "located" : "not_located";
+    j["units"] = job.units;
+    Json scans = Json::array();
+    for (std::size_t i = 0; i < result.scans.size(); ++i)
+        scans.push_back(scan_json(result.scans[i], i < job.scans.size() ? &job.scans[i] : nullptr));
+    j["scans"] = scans;
+    j["workpiece"] = workpiece_json(job, result.workpiece);
+    j["seconds"] = number(result.seconds);
+    return compact_number_arrays(j.dump(2)) + "\n";
+}
+
+std::vector<fs::path> write_outputs(const fs::path& out_dir, const Job& job, const JobResult& result,
+                                    const std::string& job_name) {
+    fs::create_directories(out_dir);
+    std::vector<fs::path> written;
+    const std::string units = "units " + job.units;
+
+    const auto model = [&](const char* file, const auto& geometry, auto write) {
+        const fs::path path = out_dir / file;
+        if (geometry) {
+            write(path, *geometry, units);
+            written.push_back(path);
+        } else {
+            remove_stale(path);
+        }
+    };
+    model("merged.ply", result.merged, write_point_cloud);
+    model("stock.stl", result.stock, write_mesh);
+    model("final_part_located.stl", result.final_part_located, write_mesh);
+
+    ReportOptions options;
+    options.job_name = job_name;
+    write_text_atomically(out_dir / "report.html", render_report_html(job, result, options));
+    written.push_back(out_dir / "report.html");
+
+    write_text_atomically(out_dir / "result.json", result_json(job, result));
+    written.push_back(out_dir / "result.json");
+    return written;
+}
+
+}  // namespace partloc::io

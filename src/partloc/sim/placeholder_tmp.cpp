@@ -1,2 +1,0 @@
-// TEMPORARY: removed when the first sim source lands.
-namespace partloc::sim {}
