@@ -33,13 +33,24 @@ Normal accumulate(const std::vector<Eigen::Vector3d>& source, const Surface& tar
     return tbb::parallel_reduce(
         tbb::blocked_range<std::size_t>(0, source.size(), 512), Normal{},
         [&](const tbb::blocked_range<std::size_t>& range, Normal acc) {
+            std::vector<int> idx;
+            std::vector<double> d2;
             for (std::size_t i = range.begin(); i != range.end(); ++i) {
                 const Eigen::Vector3d p = T * source[i];
-                double d2 = 0;
-                const int k = target.nearest(p, &d2);
-                if (k < 0 || d2 > max_d2) continue;
+                // Of the nearest samples, the one whose tangent plane is nearest: at an edge the nearest
+                // sample may lie on the other face, and its plane would pull the fit sideways.
+                if (target.tree->SearchKNN(p, 4, idx, d2) < 1 || d2[0] > max_d2) continue;
+                int k = idx[0];
+                double r = (p - target.points[k]).dot(target.normals[k]);
+                for (std::size_t j = 1; j < idx.size(); ++j) {
+                    if (d2[j] > max_d2) break;
+                    const double rj = (p - target.points[idx[j]]).dot(target.normals[idx[j]]);
+                    if (std::abs(rj) < std::abs(r)) {
+                        r = rj;
+                        k = idx[j];
+                    }
+                }
                 const Eigen::Vector3d& n = target.normals[k];
-                const double r = (p - target.points[k]).dot(n);
                 double w = 1.0;
                 if (weighted) {
                     const double u = r / max_distance;

@@ -16,7 +16,7 @@ namespace partloc {
 struct IcpSettings {
     std::vector<double> max_distances;  ///< correspondence distance per stage, decreasing (job units)
     int max_iterations = 30;            ///< per stage
-    double min_step = 1e-7;             ///< stop a stage when the update is smaller (radians, job units/diameter)
+    double min_step = 1e-5;             ///< stop a stage when the update is smaller (radians, job units/diameter)
     std::size_t min_correspondences = 12;
 };
 

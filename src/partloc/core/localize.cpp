@@ -5,7 +5,6 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <cstdlib>
 #include <stdexcept>
 
 #include "partloc/core/icp.hpp"
@@ -120,7 +119,7 @@ std::vector<Eigen::Vector3d> subsample(const std::vector<Eigen::Vector3d>& v, st
 }
 
 FiducialFit judge(const PreparedModel& model, const Eigen::Isometry3d& T_scan_model, const Verification& v,
-                  const Thresholds& t, const LocalizeSettings& st, bool quiet = false) {
+                  const Thresholds& t, const LocalizeSettings& st) {
     FiducialFit f;
     f.fiducial = model.name;
     f.T_scan_fiducial = T_scan_model;
@@ -153,10 +152,6 @@ FiducialFit judge(const PreparedModel& model, const Eigen::Isometry3d& T_scan_mo
     else if (v.rmse > st.max_rmse * t.vs.inlier_distance)
         f.reason = fmt("residual %.4g is above %.4g", v.rmse, st.max_rmse * t.vs.inlier_distance);
     f.accepted = f.reason.empty();
-    if (!quiet && std::getenv("PARTLOC_DEBUG2"))
-        std::fprintf(stderr, "DEBUG2 %s over %.3f spread %.3f cond %.4f inl %zu obs %zu seen %zu crowd %zu occl %zu miss %zu cov %.2f viol %.3f tol %.2f\n",
-                     model.name.c_str(), f.overflow, v.spread, v.conditioning, v.inliers, v.observed, v.seen_through, v.crowded, v.occluded, v.missing,
-                     v.coverage, v.violation, t.vs.inlier_distance + t.vs.bin_size);
     return f;
 }
 
@@ -212,9 +207,11 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
         // A quick verification on the subsample ranks the candidates: support alone would favour a model
         // lying on a large plane over the real, smaller instance.
         const Verification v = verify_pose(sub, model.dense, c.T_model_scan, scan.viewpoint, quick);
-        const FiducialFit f = judge(model, c.T_model_scan.inverse(), v, t, st, /*quiet=*/true);
-        c.support = support(f);
-        c.passed = f.violation <= 2.0 * st.max_violation && f.overflow <= 2.0 * st.max_overflow;
+        const FiducialFit f = judge(model, c.T_model_scan.inverse(), v, t, st);
+        // Evidence against a pose counts against it in the ranking too, not only past a threshold.
+        const double against = std::max(f.violation / st.max_violation, f.overflow / st.max_overflow);
+        c.support = support(f) * std::max(0.0, 1.0 - 0.5 * against);
+        c.passed = against <= 2.0;
         screened.push_back(std::move(c));
     }
     std::stable_sort(screened.begin(), screened.end(), [](const Screened& a, const Screened& b) {
@@ -222,12 +219,17 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
         return a.support > b.support;
     });
     IcpSettings fine = t.is;
-    fine.max_distances = {0.5 * s, t.is.max_distances.back()};
+    fine.max_distances = {0.5 * s, 0.25 * s};
+    IcpSettings polish = t.is;
+    polish.max_distances = {t.is.max_distances.back()};
     std::vector<FiducialFit> fits;
     for (std::size_t i = 0; i < screened.size() && static_cast<int>(i) < st.verified; ++i) {
         const auto& c = screened[i];
-        const IcpResult icp = icp_point_to_plane(subsample(c.local, 20000), model.dense, c.T_model_scan, fine);
-        const Eigen::Isometry3d T_ms = icp.T_target_source;
+        // Down to a quarter of the sampling on a subsample, then every point at the noise's scale: a face
+        // seen with few points (a narrow wall) is what fixes some directions, and a subsample thins it.
+        const IcpResult icp = icp_point_to_plane(subsample(c.local, 8000), model.dense, c.T_model_scan, fine);
+        const IcpResult last = icp_point_to_plane(c.local, model.dense, icp.T_target_source, polish);
+        const Eigen::Isometry3d T_ms = last.T_target_source;
         // Verify on the points around the refined pose: the fit may have moved by up to the sampling.
         const auto local = points_near(scan, T_ms.inverse() * model.dense.center, radius);
         const Verification v = verify_pose(local, model.dense, T_ms, scan.viewpoint, t.vs);

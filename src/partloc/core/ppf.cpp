@@ -61,6 +61,11 @@ PpfModel::PpfModel(const std::vector<Eigen::Vector3d>& points, const std::vector
         if (k >= 0) ++offsets_[k + 1];
     std::partial_sum(offsets_.begin(), offsets_.end(), offsets_.begin());
     entries_.resize(offsets_.back());
+    // Features that half the model's pairs share (two perpendicular faces of a block) are shared by every
+    // prismatic thing in the cell too: they cost most of the voting and carry little evidence.
+    std::size_t used = 0;
+    for (int k = 0; k < nkeys; ++k) used += offsets_[k + 1] > offsets_[k];
+    max_bucket_ = used ? static_cast<std::size_t>(settings_.bucket_cap * offsets_.back() / used) : 0;
     std::vector<std::uint32_t> fill(offsets_.begin(), offsets_.end() - 1);
     for (std::size_t i = 0; i < n; ++i)
         for (std::size_t j = 0; j < n; ++j) {
@@ -126,7 +131,7 @@ std::vector<PoseCandidate> ppf_detect(const PpfModel& model, const std::vector<E
                 const int k = model.key(pr, nr, scene_points[j], scene_normals[j]);
                 if (k < 0) continue;
                 const auto [b, e] = model.lookup(k);
-                if (b == e) continue;
+                if (b == e || static_cast<std::size_t>(e - b) > model.max_bucket()) continue;
                 const double alpha_s = pair_alpha(T_sg, scene_points[j]);
                 for (const auto* it = b; it != e; ++it) {
                     double a = alpha_s - it->alpha;

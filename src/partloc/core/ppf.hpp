@@ -18,6 +18,7 @@ struct PpfSettings {
     double coplanar_deg = 8.0;  ///< a pair whose normals and joining line are within this of coplanar is skipped
     int max_candidates = 32;    ///< pose clusters returned, most votes first
     int per_location = 2;       ///< at most this many candidates within a quarter diameter of each other
+    double bucket_cap = 8.0;    ///< features shared by more model pairs than this x the mean cast no votes
     double cluster_rotation_deg = 12.0;  ///< poses closer than this and cluster_distance join one cluster
     double cluster_distance = 0.0;       ///< (job units); 0: 2 * sampling
 };
@@ -33,6 +34,7 @@ public:
     double diameter() const { return diameter_; }
     const Eigen::Vector3d& center() const { return center_; }
     std::size_t size() const { return points_.size(); }
+    std::size_t max_bucket() const { return max_bucket_; }
 
     /// Feature key of an oriented pair, or -1 for a pair that is skipped (too close, coplanar).
     int key(const Eigen::Vector3d& p1, const Eigen::Vector3d& n1, const Eigen::Vector3d& p2,
@@ -56,6 +58,7 @@ private:
     int distance_bins_ = 0;
     std::vector<std::uint32_t> offsets_;  ///< CSR: entries of key k are entries_[offsets_[k], offsets_[k+1])
     std::vector<Entry> entries_;
+    std::size_t max_bucket_ = 0;
 };
 
 struct PoseCandidate {

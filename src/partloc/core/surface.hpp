@@ -27,8 +27,9 @@ struct Surface {
 /// Builds a Surface from points that carry normals (throws std::invalid_argument without normals).
 Surface make_surface(std::shared_ptr<open3d::geometry::PointCloud> cloud, double spacing);
 
-/// Paper §3.2 step 5 (MeshLab's Poisson-disk filter): samples the mesh surface with Poisson-disk sampling at
-/// about `spacing` between samples, with the triangles' own normals (outward for a closed mesh).
+/// Paper §3.2 step 5 (MeshLab's Poisson-disk filter): samples the mesh surface with Poisson-disk sampling,
+/// about one sample per `spacing`^2 of surface and no two closer than 0.8 `spacing`, with the triangles' own
+/// normals (outward for a closed mesh). Deterministic.
 std::shared_ptr<open3d::geometry::PointCloud> sample_mesh(const open3d::geometry::TriangleMesh& mesh,
                                                           double spacing);
 

@@ -53,30 +53,34 @@ Verification verify_pose(const std::vector<Eigen::Vector3d>& scan_points, const 
     const double reach = std::max(4.0 * model.spacing, 0.05 * model.diameter);
     std::vector<int> knn_idx;
     std::vector<double> knn_d2;
+    // A point is on the model when it lies on the tangent plane of one of its nearest samples, within that
+    // sample's share of the surface (a Poisson-disk sample covers a disk of about its spacing). Several
+    // samples are looked at because at an edge the nearest may lie on the other face.
+    const double cover = 1.5 * model.spacing;
     for (const auto& p : pts) {
-        double d2 = 0;
-        const int k = model.nearest(p, &d2);
-        if (k < 0) continue;
-        const Eigen::Vector3d& n = model.normals[k];
-        const Eigen::Vector3d d = p - model.points[k];
-        const double along = d.dot(n);
-        if (d2 > s.inlier_distance * s.inlier_distance) {
-            // A face that the scanner sees, continued past the model's edge: the model ends where the
-            // surface does not (a model sunk flush into a larger body, or a smaller look-alike). At a convex
-            // edge the nearest sample may lie on the other face, so look at a few.
-            if (d2 > reach * reach) continue;
-            model.tree->SearchKNN(p, 8, knn_idx, knn_d2);
-            for (int j : knn_idx) {
-                const Eigen::Vector3d& nj = model.normals[j];
-                const Eigen::Vector3d dj = p - model.points[j];
-                const double aj = dj.dot(nj);
-                if (std::abs(aj) <= s.inlier_distance && (eye - model.points[j]).dot(nj) > 0) {
-                    ++v.overflow;
-                    break;
-                }
+        if (model.tree->SearchKNN(p, 6, knn_idx, knn_d2) < 1 || knn_d2[0] > reach * reach) continue;
+        int on = -1;
+        bool facing_plane = false;
+        for (std::size_t j = 0; j < knn_idx.size(); ++j) {
+            const int k = knn_idx[j];
+            const Eigen::Vector3d& n = model.normals[k];
+            const Eigen::Vector3d d = p - model.points[k];
+            const double along = d.dot(n);
+            if (std::abs(along) > s.inlier_distance) continue;
+            if ((d - along * n).norm() <= cover) {
+                on = k;
+                break;
             }
+            facing_plane = facing_plane || (eye - model.points[k]).dot(n) > 0;
+        }
+        if (on < 0) {
+            // A face that the scanner sees, continued past the model's edge: the model ends where the
+            // surface does not (a model sunk flush into a larger body, or a smaller look-alike).
+            if (facing_plane) ++v.overflow;
             continue;
         }
+        const Eigen::Vector3d& n = model.normals[on];
+        const double along = (p - model.points[on]).dot(n);
         ++v.inliers;
         r2 += along * along;
         Vector6d J;

@@ -20,12 +20,23 @@ WorkpieceFit fit_reference_surfaces(const std::vector<Eigen::Vector3d>& merged, 
     const double D = reference.diameter;
     const double start = st.max_start_distance > 0 ? st.max_start_distance : 0.1 * D;
     const double fine = std::sqrt(9.0 * st.noise * st.noise + 0.25 * reference.spacing * reference.spacing);
+    IcpSettings coarse;
+    for (double d = start; d > 4.0 * fine; d *= 0.5) coarse.max_distances.push_back(d);
+    coarse.max_distances.push_back(4.0 * fine);
+    coarse.max_iterations = 40;
+    // The coarse stages need only a few tens of thousands of points; the last uses up to 200,000.
+    std::vector<Eigen::Vector3d> sub;
+    const std::size_t stride = std::max<std::size_t>(1, merged.size() / 20000);
+    for (std::size_t i = 0; i < merged.size(); i += stride) sub.push_back(merged[i]);
+    const IcpResult first = icp_point_to_plane(sub, reference, Eigen::Isometry3d::Identity(), coarse);
     IcpSettings is;
-    for (double d = start; d > 4.0 * fine; d *= 0.5) is.max_distances.push_back(d);
-    is.max_distances.push_back(4.0 * fine);
-    is.max_distances.push_back(fine);
-    is.max_iterations = 40;
-    const IcpResult icp = icp_point_to_plane(merged, reference, Eigen::Isometry3d::Identity(), is);
+    is.max_distances = {fine};
+    is.max_iterations = 20;
+    std::vector<Eigen::Vector3d> last;
+    const std::size_t stride_last = std::max<std::size_t>(1, merged.size() / 200000);
+    for (std::size_t i = 0; i < merged.size(); i += stride_last) last.push_back(merged[i]);
+    IcpResult icp = icp_point_to_plane(last, reference, first.T_target_source, is);
+    icp.iterations += first.iterations;
     fit.iterations = icp.iterations;
     fit.T_correction = icp.T_target_source.inverse();
     fit.rmse = icp.rmse;
