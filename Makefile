@@ -3,7 +3,7 @@ BUILD ?= build
 BUILD_TYPE ?= Release
 JOBS ?= $(shell nproc)
 
-.PHONY: all deps configure build test demo bench clean
+.PHONY: all deps configure build test demo clean
 
 all: build
 
@@ -21,10 +21,6 @@ test: build
 
 demo: build
 	$(BUILD)/partloc demo
-
-bench: build
-	cmake --build $(BUILD) -j$(JOBS) --target partloc_bench
-	$(BUILD)/bench/partloc_bench
 
 clean:
 	rm -rf $(BUILD)
