@@ -64,6 +64,13 @@ Eigen::Isometry3d rotation_about_line(const Eigen::Vector3d& point, const Eigen:
     return T;
 }
 
+double wrap_deg(double a) {
+    a = std::fmod(a, 360.0);
+    if (a > 180.0) a -= 360.0;
+    if (a <= -180.0) a += 360.0;
+    return a;
+}
+
 double rotation_angle_deg(const Eigen::Matrix3d& R) {
     const double c = std::clamp((R.trace() - 1.0) / 2.0, -1.0, 1.0);
     return std::acos(c) / kDeg;

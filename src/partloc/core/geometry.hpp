@@ -28,6 +28,9 @@ Eigen::Isometry3d checked_isometry(const Eigen::Matrix4d& M, const std::string& 
 Eigen::Isometry3d rotation_about_line(const Eigen::Vector3d& point, const Eigen::Vector3d& direction,
                                       double angle_deg);
 
+/// An angle in degrees wrapped into (-180, 180].
+double wrap_deg(double angle_deg);
+
 /// Angle of the rotation R in degrees, in [0, 180].
 double rotation_angle_deg(const Eigen::Matrix3d& R);
 

@@ -78,13 +78,6 @@ std::string pose_cells(const Eigen::Isometry3d& T, const Formatter& f) {
     return s;
 }
 
-double wrap_deg(double a) {
-    a = std::fmod(a, 360.0);
-    if (a > 180.0) a -= 360.0;
-    if (a <= -180.0) a += 360.0;
-    return a;
-}
-
 /// One orthographic view: which machine axes run right and up, and which one points at the viewer.
 struct View {
     const char* title;

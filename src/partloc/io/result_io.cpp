@@ -34,13 +34,6 @@ Json matrix(const Eigen::Isometry3d& T) {
     return rows;
 }
 
-double wrap_deg(double a) {
-    a = std::fmod(a, 360.0);
-    if (a > 180.0) a -= 360.0;
-    if (a <= -180.0) a += 360.0;
-    return a;
-}
-
 Json fit_json(const FiducialFit& f) {
     Json j;
     j["fiducial"] = f.fiducial;
