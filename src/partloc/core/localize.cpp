@@ -111,6 +111,17 @@ std::vector<Eigen::Vector3d> points_near(const PreparedScan& scan, const Eigen::
     return out;
 }
 
+std::vector<Eigen::Vector3d> points_near_surface(const std::vector<Eigen::Vector3d>& pts, const Surface& surface,
+                                                const Eigen::Isometry3d& T_surface_pts, double distance) {
+    std::vector<Eigen::Vector3d> out;
+    out.reserve(pts.size());
+    for (const auto& p : pts) {
+        double d2 = 0.0;
+        if (surface.nearest(T_surface_pts * p, &d2) >= 0 && d2 <= distance * distance) out.push_back(p);
+    }
+    return out;
+}
+
 std::vector<Eigen::Vector3d> subsample(const std::vector<Eigen::Vector3d>& v, std::size_t max_n) {
     std::vector<Eigen::Vector3d> out;
     const std::size_t stride = std::max<std::size_t>(1, (v.size() + max_n - 1) / max_n);
@@ -169,9 +180,13 @@ FiducialFit evaluate_model(const PreparedScan& scan, const PreparedModel& model,
 
 std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const PreparedModel& model,
                                         const LocalizeSettings& st) {
+    return fit_candidates(scan, model, st, ppf_detect(*model.ppf, scan.coarse_points, scan.coarse_normals));
+}
+
+std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const PreparedModel& model,
+                                        const LocalizeSettings& st, const std::vector<PoseCandidate>& candidates) {
     const Thresholds t = thresholds(scan, model);
     const double s = model.sampling;
-    const auto candidates = ppf_detect(*model.ppf, scan.coarse_points, scan.coarse_normals);
 
     // Stage 1, screening: every candidate gets a coarse fit on a few thousand points and is ranked by the
     // points it then explains. Stage 2: the best few get the fine fit and the full verification.
@@ -220,6 +235,8 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
     });
     IcpSettings fine = t.is;
     fine.max_distances = {0.5 * s, 0.25 * s};
+    fine.max_iterations = 15;
+    fine.min_step = 1e-5;
     IcpSettings polish = t.is;
     polish.max_distances = {t.is.max_distances.back()};
     std::vector<FiducialFit> fits;
@@ -227,8 +244,12 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
         const auto& c = screened[i];
         // Down to a quarter of the sampling on a subsample, then every point at the noise's scale: a face
         // seen with few points (a narrow wall) is what fixes some directions, and a subsample thins it.
-        const IcpResult icp = icp_point_to_plane(subsample(c.local, 8000), model.dense, c.T_model_scan, fine);
-        const IcpResult last = icp_point_to_plane(c.local, model.dense, icp.T_target_source, polish);
+        const IcpResult icp = icp_point_to_plane(subsample(c.local, 3000), model.dense, c.T_model_scan, fine);
+        // The polish sees only the points near the surface after the fine fit (the rest cannot become
+        // correspondences within the polish distance unless the pose moves by more than the fit's step).
+        const auto near = points_near_surface(c.local, model.dense, icp.T_target_source,
+                                              2.0 * polish.max_distances.back() + 0.1 * s);
+        const IcpResult last = icp_point_to_plane(near, model.dense, icp.T_target_source, polish);
         const Eigen::Isometry3d T_ms = last.T_target_source;
         // Verify on the points around the refined pose: the fit may have moved by up to the sampling.
         const auto local = points_near(scan, T_ms.inverse() * model.dense.center, radius);

@@ -74,7 +74,7 @@ struct FiducialFit {
 
 struct LocalizeSettings {
     int candidates = 32;            ///< global-fit candidates screened by a coarse fit
-    int verified = 5;               ///< of those, the best refined finely and verified
+    int verified = 3;               ///< of those, the best refined finely and verified
     double min_coverage = 0.30;     ///< of the model surface facing the scanner
     double max_violation = 0.05;    ///< of nearby points seen inside the model
     double min_conditioning = 0.003; ///< a plane alone gives 0; a corner about 0.1-0.3
@@ -93,6 +93,10 @@ double support(const FiducialFit& fit);
 /// local checks first, then by support. Ambiguity is left to the caller.
 std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const PreparedModel& model,
                                         const LocalizeSettings& settings);
+/// The same from global-fit candidates already found (ppf_detect of several models in one pass).
+std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const PreparedModel& model,
+                                        const LocalizeSettings& settings,
+                                        const std::vector<PoseCandidate>& candidates);
 
 /// Judges `model` at a given pose in the scan (no fitting): where another fiducial says it must be.
 FiducialFit evaluate_model(const PreparedScan& scan, const PreparedModel& model,

@@ -16,16 +16,61 @@ namespace partloc {
 namespace {
 constexpr double kTwoPi = 2.0 * M_PI;
 
-double angle_between(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
-    return std::atan2(a.cross(b).norm(), a.dot(b));
+// atan2 to about 1e-5 rad, several times cheaper than the library's; the pair angle is binned at 12 degrees,
+// and the model's table and the scene use this same function.
+double fast_atan2(double y, double x) {
+    const double ax = std::abs(x), ay = std::abs(y);
+    const double mx = std::max(ax, ay);
+    if (mx == 0.0) return 0.0;
+    const double a = std::min(ax, ay) / mx;
+    const double s = a * a;
+    double r = ((((-0.0117212 * s + 0.05265332) * s - 0.11643287) * s + 0.19354346) * s - 0.33262347) * s * a +
+               0.99997726 * a;
+    if (ay > ax) r = M_PI_2 - r;
+    if (x < 0) r = M_PI - r;
+    return y < 0 ? -r : r;
 }
 
 // Angle of the second point about +x once the pair is aligned by ppf_align_to_x of the first.
 double pair_alpha(const Eigen::Isometry3d& T_g, const Eigen::Vector3d& p2) {
     const Eigen::Vector3d v = T_g * p2;
-    return std::atan2(v.z(), v.y());
+    return fast_atan2(v.z(), v.y());
 }
 }  // namespace
+
+PpfFeatures::PpfFeatures(const PpfSettings& s) : settings_(s) {
+    if (s.sampling <= 0) throw std::invalid_argument("PPF sampling must be > 0");
+    // Angle bin k holds [k pi / A, (k+1) pi / A): compare cosines with the bin edges instead of taking acos.
+    for (int k = 1; k < s.angle_bins; ++k) edges_.push_back(std::cos(k * M_PI / s.angle_bins));
+    sin_c_ = std::sin(s.coplanar_deg * M_PI / 180.0);
+    cos_c_ = std::cos(s.coplanar_deg * M_PI / 180.0);
+}
+
+int PpfFeatures::angle_bin(double c) const {
+    // edges_ decrease with the angle: the bin is the number of edges whose angle the pair's angle reaches.
+    int lo = 0, hi = static_cast<int>(edges_.size());
+    while (lo < hi) {
+        const int mid = (lo + hi) / 2;
+        if (c <= edges_[mid]) lo = mid + 1;
+        else hi = mid;
+    }
+    return lo;
+}
+
+int PpfFeatures::key(const Eigen::Vector3d& p1, const Eigen::Vector3d& n1, const Eigen::Vector3d& p2,
+                     const Eigen::Vector3d& n2, int* distance_bin) const {
+    const Eigen::Vector3d d = p2 - p1;
+    const double dist2 = d.squaredNorm();
+    const double s = settings_.sampling;
+    if (dist2 < s * s) return -1;
+    const double dist = std::sqrt(dist2);
+    const Eigen::Vector3d u = d / dist;
+    const double c1 = n1.dot(u), c2 = n2.dot(u), c3 = n1.dot(n2);
+    if (std::abs(c3) > cos_c_ && std::abs(c1) < sin_c_) return -1;  // one plane: no shape
+    *distance_bin = static_cast<int>(dist / s);
+    const int A = settings_.angle_bins;
+    return (angle_bin(c1) * A + angle_bin(c2)) * A + angle_bin(c3);
+}
 
 Eigen::Isometry3d ppf_align_to_x(const Eigen::Vector3d& p, const Eigen::Vector3d& n) {
     Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
@@ -36,8 +81,7 @@ Eigen::Isometry3d ppf_align_to_x(const Eigen::Vector3d& p, const Eigen::Vector3d
 
 PpfModel::PpfModel(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& normals,
                    const PpfSettings& settings)
-    : settings_(settings), points_(points), normals_(normals) {
-    if (settings_.sampling <= 0) throw std::invalid_argument("PPF sampling must be > 0");
+    : settings_(settings), features_(settings), points_(points), normals_(normals) {
     if (points.size() != normals.size() || points.empty())
         throw std::invalid_argument("PPF model needs points with normals");
     Eigen::AlignedBox3d box;
@@ -71,25 +115,17 @@ PpfModel::PpfModel(const std::vector<Eigen::Vector3d>& points, const std::vector
         for (std::size_t j = 0; j < n; ++j) {
             const int k = keys[i * n + j];
             if (k < 0) continue;
-            entries_[fill[k]++] = {static_cast<std::uint32_t>(i),
-                                   static_cast<float>(pair_alpha(T_g[i], points_[j]))};
+            double a = pair_alpha(T_g[i], points_[j]);
+            a -= kTwoPi * std::floor(a / kTwoPi);  // [0, 2 pi), as the scene's
+            entries_[fill[k]++] = {static_cast<std::uint32_t>(i), static_cast<float>(a)};
         }
 }
 
 int PpfModel::key(const Eigen::Vector3d& p1, const Eigen::Vector3d& n1, const Eigen::Vector3d& p2,
                   const Eigen::Vector3d& n2) const {
-    const Eigen::Vector3d d = p2 - p1;
-    const double dist = d.norm();
-    if (dist < settings_.sampling) return -1;
-    const Eigen::Vector3d u = d / dist;
-    const double sin_c = std::sin(settings_.coplanar_deg * M_PI / 180.0);
-    const double cos_c = std::cos(settings_.coplanar_deg * M_PI / 180.0);
-    if (std::abs(n1.dot(n2)) > cos_c && std::abs(u.dot(n1)) < sin_c) return -1;  // one plane: no shape
-    const int db = static_cast<int>(dist / settings_.sampling);
-    if (db >= distance_bins_) return -1;
-    const int A = settings_.angle_bins;
-    auto bin = [A](double angle) { return std::min(A - 1, static_cast<int>(angle / M_PI * A)); };
-    return ((db * A + bin(angle_between(n1, u))) * A + bin(angle_between(n2, u))) * A + bin(angle_between(n1, n2));
+    int db = 0;
+    const int k = features_.key(p1, n1, p2, n2, &db);
+    return k < 0 ? -1 : key_of(k, db);
 }
 
 std::pair<const PpfModel::Entry*, const PpfModel::Entry*> PpfModel::lookup(int k) const {
@@ -99,24 +135,48 @@ std::pair<const PpfModel::Entry*, const PpfModel::Entry*> PpfModel::lookup(int k
 
 std::vector<PoseCandidate> ppf_detect(const PpfModel& model, const std::vector<Eigen::Vector3d>& scene_points,
                                       const std::vector<Eigen::Vector3d>& scene_normals) {
-    const PpfSettings& s = model.settings();
-    if (scene_points.size() < 3) return {};
+    return ppf_detect(std::vector<const PpfModel*>{&model}, scene_points, scene_normals).front();
+}
+
+namespace {
+
+std::vector<PoseCandidate> cluster_votes(const PpfModel& model, const std::vector<PoseCandidate>& per_ref);
+
+}  // namespace
+
+std::vector<std::vector<PoseCandidate>> ppf_detect(const std::vector<const PpfModel*>& models,
+                                                   const std::vector<Eigen::Vector3d>& scene_points,
+                                                   const std::vector<Eigen::Vector3d>& scene_normals) {
+    std::vector<std::vector<PoseCandidate>> out(models.size());
+    if (models.empty() || scene_points.size() < 3) return out;
+    const PpfSettings& s = models.front()->settings();
+    for (const auto* m : models) {
+        const PpfSettings& o = m->settings();
+        if (o.sampling != s.sampling || o.angle_bins != s.angle_bins || o.alpha_bins != s.alpha_bins ||
+            o.coplanar_deg != s.coplanar_deg || o.reference_stride != s.reference_stride)
+            throw std::invalid_argument("ppf_detect: the models differ in sampling or bins");
+    }
+    const PpfFeatures features(s);
     open3d::geometry::PointCloud cloud;
     cloud.points_ = scene_points;
     open3d::geometry::KDTreeFlann tree(cloud);
+    double reach = 0.0;
+    for (const auto* m : models) reach = std::max(reach, m->diameter());
 
     const int nalpha = s.alpha_bins;
-    const std::size_t nm = model.size();
     std::vector<std::size_t> refs;
     // Every k-th point as reference, but at least about a thousand references on a small scene.
     const std::size_t stride =
         std::clamp<std::size_t>(scene_points.size() / 1000, 1, static_cast<std::size_t>(s.reference_stride));
     for (std::size_t r = 0; r < scene_points.size(); r += stride) refs.push_back(r);
 
-    // Each reference point keeps its best pose (Drost §3.3); per-reference slots keep it deterministic.
-    std::vector<PoseCandidate> per_ref(refs.size());
+    // Each reference point keeps its best pose per model (Drost §3.3); per-reference slots keep it
+    // deterministic.
+    const std::size_t M = models.size();
+    std::vector<PoseCandidate> per_ref(refs.size() * M);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, refs.size(), 16), [&](const auto& range) {
-        std::vector<std::uint16_t> acc(nm * nalpha);
+        std::vector<std::vector<std::uint16_t>> acc(M);
+        for (std::size_t m = 0; m < M; ++m) acc[m].resize(models[m]->size() * nalpha);
         std::vector<int> idx;
         std::vector<double> d2;
         for (std::size_t ri = range.begin(); ri != range.end(); ++ri) {
@@ -124,36 +184,59 @@ std::vector<PoseCandidate> ppf_detect(const PpfModel& model, const std::vector<E
             const Eigen::Vector3d& pr = scene_points[r];
             const Eigen::Vector3d& nr = scene_normals[r];
             const Eigen::Isometry3d T_sg = ppf_align_to_x(pr, nr);
-            std::fill(acc.begin(), acc.end(), 0);
-            tree.SearchRadius(pr, model.diameter(), idx, d2);
+            for (auto& a : acc) std::fill(a.begin(), a.end(), 0);
+            tree.SearchRadius(pr, reach, idx, d2);
             for (int j : idx) {
                 if (static_cast<std::size_t>(j) == r) continue;
-                const int k = model.key(pr, nr, scene_points[j], scene_normals[j]);
-                if (k < 0) continue;
-                const auto [b, e] = model.lookup(k);
-                if (b == e || static_cast<std::size_t>(e - b) > model.max_bucket()) continue;
-                const double alpha_s = pair_alpha(T_sg, scene_points[j]);
-                for (const auto* it = b; it != e; ++it) {
-                    double a = alpha_s - it->alpha;
-                    a -= kTwoPi * std::floor(a / kTwoPi);
-                    const int ab = std::min(nalpha - 1, static_cast<int>(a / kTwoPi * nalpha));
-                    auto& v = acc[it->model_index * nalpha + ab];
-                    if (v < 65535) ++v;
+                int db = 0;
+                const int ak = features.key(pr, nr, scene_points[j], scene_normals[j], &db);
+                if (ak < 0) continue;
+                double alpha_s = -1.0;  // computed when some model has entries for this pair
+                for (std::size_t m = 0; m < M; ++m) {
+                    const PpfModel& model = *models[m];
+                    const auto [b, e] = model.lookup(model.key_of(ak, db));
+                    if (b == e || static_cast<std::size_t>(e - b) > model.max_bucket()) continue;
+                    if (alpha_s < 0.0) {
+                        alpha_s = pair_alpha(T_sg, scene_points[j]);
+                        alpha_s -= kTwoPi * std::floor(alpha_s / kTwoPi);  // [0, 2 pi)
+                    }
+                    std::uint16_t* votes = acc[m].data();
+                    for (const auto* it = b; it != e; ++it) {
+                        double a = alpha_s - it->alpha;
+                        if (a < 0) a += kTwoPi;
+                        const int ab = std::min(nalpha - 1, static_cast<int>(a * (nalpha / kTwoPi)));
+                        auto& v = votes[it->model_index * nalpha + ab];
+                        if (v < 65535) ++v;
+                    }
                 }
             }
-            const auto best = std::max_element(acc.begin(), acc.end());
-            if (*best == 0) continue;
-            const std::size_t bi = static_cast<std::size_t>(best - acc.begin());
-            const std::size_t mi = bi / nalpha;
-            const double alpha = (static_cast<double>(bi % nalpha) + 0.5) / nalpha * kTwoPi;
-            const Eigen::Isometry3d T_mg = ppf_align_to_x(model.points()[mi], model.normals()[mi]);
-            PoseCandidate c;
-            c.T_scene_model = T_sg.inverse() * Eigen::AngleAxisd(alpha, Eigen::Vector3d::UnitX()) * T_mg;
-            c.votes = *best;
-            per_ref[ri] = c;
+            for (std::size_t m = 0; m < M; ++m) {
+                const auto best = std::max_element(acc[m].begin(), acc[m].end());
+                if (*best == 0) continue;
+                const std::size_t bi = static_cast<std::size_t>(best - acc[m].begin());
+                const std::size_t mi = bi / nalpha;
+                const double alpha = (static_cast<double>(bi % nalpha) + 0.5) / nalpha * kTwoPi;
+                const Eigen::Isometry3d T_mg = ppf_align_to_x(models[m]->points()[mi], models[m]->normals()[mi]);
+                PoseCandidate c;
+                c.T_scene_model = T_sg.inverse() * Eigen::AngleAxisd(alpha, Eigen::Vector3d::UnitX()) * T_mg;
+                c.votes = *best;
+                per_ref[ri * M + m] = c;
+            }
         }
     });
+    for (std::size_t m = 0; m < M; ++m) {
+        std::vector<PoseCandidate> mine;
+        mine.reserve(refs.size());
+        for (std::size_t ri = 0; ri < refs.size(); ++ri) mine.push_back(per_ref[ri * M + m]);
+        out[m] = cluster_votes(*models[m], mine);
+    }
+    return out;
+}
 
+namespace {
+
+std::vector<PoseCandidate> cluster_votes(const PpfModel& model, const std::vector<PoseCandidate>& per_ref) {
+    const PpfSettings& s = model.settings();
     // Pose clustering (Drost §3.4): greedy, most votes first; a cluster's votes are summed.
     std::vector<PoseCandidate> all;
     for (auto& c : per_ref)
@@ -195,5 +278,7 @@ std::vector<PoseCandidate> ppf_detect(const PpfModel& model, const std::vector<E
     }
     return out;
 }
+
+}  // namespace
 
 }  // namespace partloc

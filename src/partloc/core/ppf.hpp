@@ -23,6 +23,23 @@ struct PpfSettings {
     double cluster_distance = 0.0;       ///< (job units); 0: 2 * sampling
 };
 
+/// The pair feature of Drost et al.: distance and three angles, binned. Angle bins come from comparing cosines
+/// with the bins' edges (no inverse trigonometry), so that one scene pair is binned once for every model.
+class PpfFeatures {
+public:
+    explicit PpfFeatures(const PpfSettings& settings);
+    /// Angle part of the key of an oriented pair (unit normals), and its distance bin; -1 for a pair that is
+    /// skipped (closer than the sampling, or on one plane).
+    int key(const Eigen::Vector3d& p1, const Eigen::Vector3d& n1, const Eigen::Vector3d& p2,
+            const Eigen::Vector3d& n2, int* distance_bin) const;
+    int angle_bin(double cosine) const;
+
+private:
+    PpfSettings settings_;
+    std::vector<double> edges_;
+    double sin_c_ = 0.0, cos_c_ = 1.0;
+};
+
 /// The model's pair features, hashed. Built once per model, searched from many threads.
 class PpfModel {
 public:
@@ -36,13 +53,19 @@ public:
     std::size_t size() const { return points_.size(); }
     std::size_t max_bucket() const { return max_bucket_; }
 
-    /// Feature key of an oriented pair, or -1 for a pair that is skipped (too close, coplanar).
+    /// Feature key of an oriented pair, or -1 for a pair that is skipped (too close, coplanar, too far).
     int key(const Eigen::Vector3d& p1, const Eigen::Vector3d& n1, const Eigen::Vector3d& p2,
             const Eigen::Vector3d& n2) const;
+    /// Table key of a pair with angle key `angle_key` (from PpfFeatures) and distance bin `distance_bin`.
+    int key_of(int angle_key, int distance_bin) const {
+        if (distance_bin >= distance_bins_) return -1;
+        const int A = settings_.angle_bins;
+        return distance_bin * A * A * A + angle_key;
+    }
 
     struct Entry {
         std::uint32_t model_index;
-        float alpha;  ///< angle of the pair about the first normal, radians
+        float alpha;  ///< angle of the pair about the first normal, radians in [0, 2 pi)
     };
     /// Entries with this key: [begin, end).
     std::pair<const Entry*, const Entry*> lookup(int key) const;
@@ -52,6 +75,7 @@ public:
 
 private:
     PpfSettings settings_;
+    PpfFeatures features_;
     std::vector<Eigen::Vector3d> points_, normals_;
     double diameter_ = 0.0;
     Eigen::Vector3d center_ = Eigen::Vector3d::Zero();
@@ -70,6 +94,13 @@ struct PoseCandidate {
 /// settings.max_candidates pose clusters, most votes first. Deterministic for any number of threads.
 std::vector<PoseCandidate> ppf_detect(const PpfModel& model, const std::vector<Eigen::Vector3d>& scene_points,
                                       const std::vector<Eigen::Vector3d>& scene_normals);
+
+/// The same for several models in one pass over the scene: the neighbour search and each pair's feature are
+/// computed once and vote in every model's table (the models must share sampling and bins). One candidate
+/// list per model, in the models' order.
+std::vector<std::vector<PoseCandidate>> ppf_detect(const std::vector<const PpfModel*>& models,
+                                                   const std::vector<Eigen::Vector3d>& scene_points,
+                                                   const std::vector<Eigen::Vector3d>& scene_normals);
 
 /// Alignment of an oriented point to the origin with its normal along +x (Drost's T_{m->g}).
 Eigen::Isometry3d ppf_align_to_x(const Eigen::Vector3d& p, const Eigen::Vector3d& n);

@@ -23,17 +23,18 @@ WorkpieceFit fit_reference_surfaces(const std::vector<Eigen::Vector3d>& merged, 
     IcpSettings coarse;
     for (double d = start; d > 4.0 * fine; d *= 0.5) coarse.max_distances.push_back(d);
     coarse.max_distances.push_back(4.0 * fine);
-    coarse.max_iterations = 40;
-    // The coarse stages need only a few tens of thousands of points; the last uses up to 200,000.
+    coarse.max_iterations = 25;
+    // The coarse stages need only ten thousand points; the last uses up to 60,000 (the noise's share of the
+    // error then is far below its bias share: about 0.13 / sqrt(60000) mm per direction).
     std::vector<Eigen::Vector3d> sub;
-    const std::size_t stride = std::max<std::size_t>(1, merged.size() / 20000);
+    const std::size_t stride = std::max<std::size_t>(1, merged.size() / 10000);
     for (std::size_t i = 0; i < merged.size(); i += stride) sub.push_back(merged[i]);
     const IcpResult first = icp_point_to_plane(sub, reference, Eigen::Isometry3d::Identity(), coarse);
     IcpSettings is;
     is.max_distances = {fine};
     is.max_iterations = 20;
     std::vector<Eigen::Vector3d> last;
-    const std::size_t stride_last = std::max<std::size_t>(1, merged.size() / 200000);
+    const std::size_t stride_last = std::max<std::size_t>(1, merged.size() / 60000);
     for (std::size_t i = 0; i < merged.size(); i += stride_last) last.push_back(merged[i]);
     IcpResult icp = icp_point_to_plane(last, reference, first.T_target_source, is);
     icp.iterations += first.iterations;

@@ -134,9 +134,12 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         }
         const Eigen::Vector3d viewpoint = estimate_viewpoint(*scan.points, work[i].scale.spacing);
         const PreparedScan ps = prepare_scan(*scan.points, work[i].scale, sampling, viewpoint);
+        std::vector<const PpfModel*> tables;
+        for (const auto& m : models) tables.push_back(m.ppf.get());
+        const auto global = ppf_detect(tables, ps.coarse_points, ps.coarse_normals);
         std::vector<std::vector<FiducialFit>> candidates(models.size());
         for (std::size_t k = 0; k < models.size(); ++k) {
-            candidates[k] = fit_candidates(ps, models[k], ls);
+            candidates[k] = fit_candidates(ps, models[k], ls, global[k]);
             if (candidates[k].empty()) {
                 FiducialFit none;
                 none.fiducial = models[k].name;
