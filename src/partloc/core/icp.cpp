@@ -29,21 +29,20 @@ struct Normal {
 // One Gauss-Newton system: residual r = (T p - q) . n, Tukey weight with scale c.
 Normal accumulate(const std::vector<Eigen::Vector3d>& source, const Surface& target, const Eigen::Isometry3d& T,
                   double max_distance, bool weighted) {
-    const double max_d2 = max_distance * max_distance;
     return tbb::parallel_reduce(
         tbb::blocked_range<std::size_t>(0, source.size(), 512), Normal{},
         [&](const tbb::blocked_range<std::size_t>& range, Normal acc) {
-            std::vector<int> idx;
-            std::vector<double> d2;
+            int idx[4];
+            double d2[4];
             for (std::size_t i = range.begin(); i != range.end(); ++i) {
                 const Eigen::Vector3d p = T * source[i];
                 // Of the nearest samples, the one whose tangent plane is nearest: at an edge the nearest
                 // sample may lie on the other face, and its plane would pull the fit sideways.
-                if (target.tree->SearchKNN(p, 4, idx, d2) < 1 || d2[0] > max_d2) continue;
+                const int found = target.grid.nearest(p, 4, max_distance, idx, d2);
+                if (found < 1) continue;
                 int k = idx[0];
                 double r = (p - target.points[k]).dot(target.normals[k]);
-                for (std::size_t j = 1; j < idx.size(); ++j) {
-                    if (d2[j] > max_d2) break;
+                for (int j = 1; j < found; ++j) {
                     const double rj = (p - target.points[idx[j]]).dot(target.normals[idx[j]]);
                     if (std::abs(rj) < std::abs(r)) {
                         r = rj;

@@ -176,6 +176,7 @@ std::vector<std::vector<PoseCandidate>> ppf_detect(const std::vector<const PpfMo
     std::vector<PoseCandidate> per_ref(refs.size() * M);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, refs.size(), 16), [&](const auto& range) {
         std::vector<std::vector<std::uint16_t>> acc(M);
+        std::vector<std::pair<std::uint16_t, std::size_t>> best(M);  // most votes per model, and where
         for (std::size_t m = 0; m < M; ++m) acc[m].resize(models[m]->size() * nalpha);
         std::vector<int> idx;
         std::vector<double> d2;
@@ -185,6 +186,7 @@ std::vector<std::vector<PoseCandidate>> ppf_detect(const std::vector<const PpfMo
             const Eigen::Vector3d& nr = scene_normals[r];
             const Eigen::Isometry3d T_sg = ppf_align_to_x(pr, nr);
             for (auto& a : acc) std::fill(a.begin(), a.end(), 0);
+            for (auto& bt : best) bt = {0, 0};
             tree.SearchRadius(pr, reach, idx, d2);
             for (int j : idx) {
                 if (static_cast<std::size_t>(j) == r) continue;
@@ -201,25 +203,31 @@ std::vector<std::vector<PoseCandidate>> ppf_detect(const std::vector<const PpfMo
                         alpha_s -= kTwoPi * std::floor(alpha_s / kTwoPi);  // [0, 2 pi)
                     }
                     std::uint16_t* votes = acc[m].data();
+                    auto& [top, top_at] = best[m];
                     for (const auto* it = b; it != e; ++it) {
                         double a = alpha_s - it->alpha;
                         if (a < 0) a += kTwoPi;
                         const int ab = std::min(nalpha - 1, static_cast<int>(a * (nalpha / kTwoPi)));
-                        auto& v = votes[it->model_index * nalpha + ab];
+                        const std::size_t at = it->model_index * nalpha + ab;
+                        auto& v = votes[at];
                         if (v < 65535) ++v;
+                        // The running maximum (the first index among equals, as a scan would find it).
+                        if (v > top || (v == top && at < top_at)) {
+                            top = v;
+                            top_at = at;
+                        }
                     }
                 }
             }
             for (std::size_t m = 0; m < M; ++m) {
-                const auto best = std::max_element(acc[m].begin(), acc[m].end());
-                if (*best == 0) continue;
-                const std::size_t bi = static_cast<std::size_t>(best - acc[m].begin());
+                if (best[m].first == 0) continue;
+                const std::size_t bi = best[m].second;
                 const std::size_t mi = bi / nalpha;
                 const double alpha = (static_cast<double>(bi % nalpha) + 0.5) / nalpha * kTwoPi;
                 const Eigen::Isometry3d T_mg = ppf_align_to_x(models[m]->points()[mi], models[m]->normals()[mi]);
                 PoseCandidate c;
                 c.T_scene_model = T_sg.inverse() * Eigen::AngleAxisd(alpha, Eigen::Vector3d::UnitX()) * T_mg;
-                c.votes = *best;
+                c.votes = best[m].first;
                 per_ref[ri * M + m] = c;
             }
         }

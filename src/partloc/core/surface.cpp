@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <random>
 #include <unordered_map>
 #include <stdexcept>
@@ -12,11 +13,11 @@
 namespace partloc {
 
 int Surface::nearest(const Eigen::Vector3d& p, double* squared_distance) const {
-    std::vector<int> idx(1);
-    std::vector<double> d2(1);
-    if (points.empty() || tree->SearchKNN(p, 1, idx, d2) < 1) return -1;
-    if (squared_distance) *squared_distance = d2[0];
-    return idx[0];
+    int idx = -1;
+    double d2 = 0.0;
+    if (grid.nearest(p, 1, std::numeric_limits<double>::infinity(), &idx, &d2) < 1) return -1;
+    if (squared_distance) *squared_distance = d2;
+    return idx;
 }
 
 Surface make_surface(std::shared_ptr<open3d::geometry::PointCloud> cloud, double spacing) {
@@ -27,6 +28,13 @@ Surface make_surface(std::shared_ptr<open3d::geometry::PointCloud> cloud, double
     s.normals = cloud->normals_;
     for (auto& n : s.normals) n.normalize();
     s.tree = std::make_shared<open3d::geometry::KDTreeFlann>(*cloud);
+    if (!s.points.empty()) {
+        // Without a spacing, that of samples spread over a surface of the bounding box's size.
+        const double d = (cloud->GetMaxBound() - cloud->GetMinBound()).norm();
+        const double grid_spacing =
+            spacing > 0 ? spacing : std::max(d / std::sqrt(static_cast<double>(s.points.size())), 1e-9);
+        s.grid = SampleGrid(s.points, grid_spacing);
+    }
     if (!s.points.empty()) {
         const auto box = cloud->GetAxisAlignedBoundingBox();
         s.center = box.GetCenter();

@@ -8,6 +8,8 @@
 #include <memory>
 #include <vector>
 
+#include "partloc/core/sample_grid.hpp"
+
 namespace partloc {
 
 /// Points with unit normals and a KD-tree over the points. Build once, query from many threads.
@@ -16,6 +18,7 @@ struct Surface {
     std::vector<Eigen::Vector3d> normals;
     std::shared_ptr<open3d::geometry::PointCloud> cloud;  ///< the same points, for Open3D calls
     std::shared_ptr<open3d::geometry::KDTreeFlann> tree;
+    SampleGrid grid;  ///< the fast exact search the fits use (sample_grid.hpp)
     Eigen::Vector3d center = Eigen::Vector3d::Zero();  ///< centre of the bounding box
     double diameter = 0.0;                             ///< bounding-box diagonal (job units)
     double spacing = 0.0;                              ///< typical distance between samples (job units)

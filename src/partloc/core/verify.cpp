@@ -51,17 +51,20 @@ Verification verify_pose(const std::vector<Eigen::Vector3d>& scan_points, const 
     Eigen::Matrix3d N = Eigen::Matrix3d::Zero();
     const Eigen::Vector3d eye = T_model_scan * viewpoint_scan;
     const double reach = std::max(4.0 * model.spacing, 0.05 * model.diameter);
-    std::vector<int> knn_idx;
-    std::vector<double> knn_d2;
+    int knn_idx[6];
+    double knn_d2[6];
     // A point is on the model when it lies on the tangent plane of one of its nearest samples, within that
     // sample's share of the surface (a Poisson-disk sample covers a disk of about its spacing). Several
     // samples are looked at because at an edge the nearest may lie on the other face.
     const double cover = 1.5 * model.spacing;
     for (const auto& p : pts) {
-        if (model.tree->SearchKNN(p, 6, knn_idx, knn_d2) < 1 || knn_d2[0] > reach * reach) continue;
+        // The nearest six within the reach: beyond it no sample can hold the point (cover and inlier distance
+        // are far smaller) or tell of a facing plane continued.
+        const int found = model.grid.nearest(p, 6, reach, knn_idx, knn_d2);
+        if (found < 1) continue;
         int on = -1;
         bool facing_plane = false;
-        for (std::size_t j = 0; j < knn_idx.size(); ++j) {
+        for (int j = 0; j < found; ++j) {
             const int k = knn_idx[j];
             const Eigen::Vector3d& n = model.normals[k];
             const Eigen::Vector3d d = p - model.points[k];
