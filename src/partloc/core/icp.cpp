@@ -28,7 +28,7 @@ struct Normal {
 
 // One Gauss-Newton system: residual r = (T p - q) . n, Tukey weight with scale c.
 Normal accumulate(const std::vector<Eigen::Vector3d>& source, const Surface& target, const Eigen::Isometry3d& T,
-                  double max_distance, bool weighted) {
+                  double max_distance, bool weighted, const std::vector<Eigen::Vector3d>* normals, double min_cos) {
     return tbb::parallel_reduce(
         tbb::blocked_range<std::size_t>(0, source.size(), 512), Normal{},
         [&](const tbb::blocked_range<std::size_t>& range, Normal acc) {
@@ -40,15 +40,18 @@ Normal accumulate(const std::vector<Eigen::Vector3d>& source, const Surface& tar
                 // sample may lie on the other face, and its plane would pull the fit sideways.
                 const int found = target.grid.nearest(p, 4, max_distance, idx, d2);
                 if (found < 1) continue;
-                int k = idx[0];
-                double r = (p - target.points[k]).dot(target.normals[k]);
-                for (int j = 1; j < found; ++j) {
+                int k = -1;
+                double r = 0.0;
+                const Eigen::Vector3d np = normals ? Eigen::Vector3d(T.linear() * (*normals)[i]) : Eigen::Vector3d::Zero();
+                for (int j = 0; j < found; ++j) {
+                    if (normals && std::abs(np.dot(target.normals[idx[j]])) < min_cos) continue;
                     const double rj = (p - target.points[idx[j]]).dot(target.normals[idx[j]]);
-                    if (std::abs(rj) < std::abs(r)) {
+                    if (k < 0 || std::abs(rj) < std::abs(r)) {
                         r = rj;
                         k = idx[j];
                     }
                 }
+                if (k < 0) continue;
                 const Eigen::Vector3d& n = target.normals[k];
                 double w = 1.0;
                 if (weighted) {
@@ -70,7 +73,10 @@ Normal accumulate(const std::vector<Eigen::Vector3d>& source, const Surface& tar
 }  // namespace
 
 IcpResult icp_point_to_plane(const std::vector<Eigen::Vector3d>& source, const Surface& target,
-                             const Eigen::Isometry3d& init, const IcpSettings& settings) {
+                             const Eigen::Isometry3d& init, const IcpSettings& settings,
+                             const std::vector<Eigen::Vector3d>* source_normals) {
+    if (source_normals && source_normals->size() != source.size()) source_normals = nullptr;
+    const double min_cos = std::cos(settings.max_normal_angle_deg * M_PI / 180.0);
     IcpResult result;
     Eigen::Isometry3d T = init;
     const double scale = std::max(target.diameter, 1e-9);
@@ -78,7 +84,7 @@ IcpResult icp_point_to_plane(const std::vector<Eigen::Vector3d>& source, const S
     for (double max_distance : settings.max_distances) {
         bool converged = false;
         for (int it = 0; it < settings.max_iterations; ++it) {
-            const Normal sys = accumulate(source, target, T, max_distance, true);
+            const Normal sys = accumulate(source, target, T, max_distance, true, source_normals, min_cos);
             ++result.iterations;
             if (sys.n < settings.min_correspondences) {
                 result.T_target_source = T;
@@ -97,7 +103,7 @@ IcpResult icp_point_to_plane(const std::vector<Eigen::Vector3d>& source, const S
         }
         all_converged = all_converged && converged;
     }
-    const Normal last = accumulate(source, target, T, settings.max_distances.back(), false);
+    const Normal last = accumulate(source, target, T, settings.max_distances.back(), false, source_normals, min_cos);
     result.T_target_source = T;
     result.converged = all_converged;
     result.inliers = last.n;

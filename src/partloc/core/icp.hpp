@@ -18,6 +18,11 @@ struct IcpSettings {
     int max_iterations = 30;            ///< per stage
     double min_step = 1e-5;             ///< stop a stage when the update is smaller (radians, job units/diameter)
     std::size_t min_correspondences = 12;
+    /// With source normals: a sample is a correspondence only if its normal is within this angle of the
+    /// point's. At an open surface's edge (a datum face meeting a face that is not a reference), points on
+    /// the other face lie within the correspondence distance of the datum's plane and, all on one side of
+    /// it, pull it over; their normals tell them apart.
+    double max_normal_angle_deg = 30.0;
 };
 
 struct IcpResult {
@@ -32,8 +37,10 @@ struct IcpResult {
 };
 
 /// Aligns source points (their own frame) onto `target` starting from init (T_target_source).
+/// `source_normals`, when not null, holds the points' normals (unit, either sign) for the normal check.
 IcpResult icp_point_to_plane(const std::vector<Eigen::Vector3d>& source, const Surface& target,
-                             const Eigen::Isometry3d& init, const IcpSettings& settings);
+                             const Eigen::Isometry3d& init, const IcpSettings& settings,
+                             const std::vector<Eigen::Vector3d>* source_normals = nullptr);
 
 /// exp of a twist [w, v] as a rigid transform.
 Eigen::Isometry3d twist_exp(const Vector6d& xi);

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <stdexcept>
 
 #include "partloc/core/icp.hpp"
@@ -120,6 +121,14 @@ std::vector<Eigen::Vector3d> points_near_surface(const std::vector<Eigen::Vector
         if (surface.nearest(T_surface_pts * p, &d2) >= 0 && d2 <= distance * distance) out.push_back(p);
     }
     return out;
+}
+
+/// Unit normals of scan points (either sign), from their neighbours among themselves.
+std::vector<Eigen::Vector3d> normals_of(const std::vector<Eigen::Vector3d>& pts, const Scale& scale) {
+    open3d::geometry::PointCloud pc;
+    pc.points_ = pts;
+    pc.EstimateNormals(open3d::geometry::KDTreeSearchParamHybrid(3.0 * scale.spacing, 20));
+    return std::move(pc.normals_);
 }
 
 std::vector<Eigen::Vector3d> subsample(const std::vector<Eigen::Vector3d>& v, std::size_t max_n) {
@@ -263,6 +272,54 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
         return support(a) > support(b);
     });
     return fits;
+}
+
+ScanPoseFit fit_scan_pose(const PreparedScan& scan, const std::vector<const PreparedModel*>& models,
+                          const std::vector<Eigen::Isometry3d>& T_machine_model, const Eigen::Isometry3d& init,
+                          const LocalizeSettings& st, double start_distance) {
+    ScanPoseFit out;
+    out.T_machine_scan = init;
+    if (models.empty() || models.size() != T_machine_model.size()) return out;
+    // Every fiducial's samples in the machine frame make one surface; the points near each (at the first
+    // guess) are the source. One least-squares fit then weighs each fiducial by what the scan saw of it.
+    auto cloud = std::make_shared<open3d::geometry::PointCloud>();
+    std::vector<Eigen::Vector3d> source, source_normals;
+    double spacing = std::numeric_limits<double>::infinity(), inlier = 0.0, start = 0.0;
+    for (std::size_t g = 0; g < models.size(); ++g) {
+        const PreparedModel& m = *models[g];
+        const Thresholds t = thresholds(scan, m);
+        spacing = std::min(spacing, m.dense.spacing);
+        inlier = std::max(inlier, t.vs.inlier_distance);
+        start = std::max(start, std::max(t.vs.inlier_distance, 0.25 * m.sampling));
+        const Eigen::Isometry3d& F = T_machine_model[g];
+        for (std::size_t i = 0; i < m.dense.points.size(); ++i) {
+            cloud->points_.push_back(F * m.dense.points[i]);
+            cloud->normals_.push_back(F.linear() * m.dense.normals[i]);
+        }
+        const Eigen::Isometry3d T_scan_model = init.inverse() * F;
+        const auto local = points_near(scan, T_scan_model * m.dense.center, m.dense.diameter / 2.0 + 2.0 * m.sampling);
+        const auto near = points_near_surface(local, m.dense, T_scan_model.inverse(),
+                                              2.0 * std::max(start, start_distance));
+        out.points.push_back(near.size());
+        source.insert(source.end(), near.begin(), near.end());
+        // The points' own normals keep a narrow face's plane from taking the points of the faces beside it
+        // (those lie within the correspondence distance of its plane near the edge, all on one side): on
+        // a weakly held direction that bias reached 0.3 mm (seed 3, scan 3), 0.003 mm with the check.
+        const auto nn = normals_of(near, scan.scale);
+        source_normals.insert(source_normals.end(), nn.begin(), nn.end());
+    }
+    const Surface all = make_surface(cloud, spacing);
+    IcpSettings is;
+    is.max_distances = {start, inlier};
+    if (start_distance > start) is.max_distances.insert(is.max_distances.begin(), start_distance);
+    const IcpResult icp = icp_point_to_plane(source, all, init, is, &source_normals);
+    if (icp.inliers < st.min_inliers) return out;
+    out.ok = true;
+    out.T_machine_scan = icp.T_target_source;
+    out.JtJ = icp.JtJ;
+    out.rmse = icp.rmse;
+    out.inliers = icp.inliers;
+    return out;
 }
 
 FiducialFit localize_model(const PreparedScan& scan, const PreparedModel& model, const LocalizeSettings& st) {

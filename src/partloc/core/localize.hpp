@@ -102,6 +102,24 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
 FiducialFit evaluate_model(const PreparedScan& scan, const PreparedModel& model,
                            const Eigen::Isometry3d& T_scan_model, const LocalizeSettings& settings);
 
+/// A scan's pose fitted to every fiducial in view at once (issue 4: every fiducial in view counts).
+struct ScanPoseFit {
+    bool ok = false;
+    Eigen::Isometry3d T_machine_scan = Eigen::Isometry3d::Identity();
+    /// Sum of J J^T over the inliers in the machine frame, twist [w, v]; information = JtJ / noise^2.
+    Matrix6d JtJ = Matrix6d::Zero();
+    double rmse = 0.0;
+    std::size_t inliers = 0;
+    std::vector<std::size_t> points;  ///< scan points taken near each fiducial's surface, in the models' order
+};
+
+/// Point-to-plane fit of the scan to all `models` at their machine poses `T_machine_model` (at the scan's
+/// axis values), from `init` (T_machine_scan, e.g. from one fiducial). `start_distance`: the first stage's
+/// correspondence distance (0: a quarter of the sampling, for a start that is already close).
+ScanPoseFit fit_scan_pose(const PreparedScan& scan, const std::vector<const PreparedModel*>& models,
+                          const std::vector<Eigen::Isometry3d>& T_machine_model, const Eigen::Isometry3d& init,
+                          const LocalizeSettings& settings, double start_distance = 0.0);
+
 /// Fits `model` to `scan`: global fit, fine fit of the best candidates, verification, decision; a second
 /// distinct pose with nearly the best support makes the answer ambiguous, and it is rejected.
 FiducialFit localize_model(const PreparedScan& scan, const PreparedModel& model, const LocalizeSettings& settings);

@@ -9,7 +9,8 @@
 namespace partloc {
 
 WorkpieceFit fit_reference_surfaces(const std::vector<Eigen::Vector3d>& merged, const Surface& reference,
-                                    const WorkpieceFitSettings& st) {
+                                    const WorkpieceFitSettings& st, const std::vector<Eigen::Vector3d>* normals) {
+    if (normals && normals->size() != merged.size()) normals = nullptr;
     WorkpieceFit fit;
     if (merged.size() < st.min_inliers) {
         fit.reason = "too few workpiece points (" + std::to_string(merged.size()) + ") to fit the reference surfaces";
@@ -26,17 +27,24 @@ WorkpieceFit fit_reference_surfaces(const std::vector<Eigen::Vector3d>& merged, 
     coarse.max_iterations = 25;
     // The coarse stages need only ten thousand points; the last uses up to 60,000 (the noise's share of the
     // error then is far below its bias share: about 0.13 / sqrt(60000) mm per direction).
-    std::vector<Eigen::Vector3d> sub;
+    std::vector<Eigen::Vector3d> sub, sub_n;
     const std::size_t stride = std::max<std::size_t>(1, merged.size() / 10000);
-    for (std::size_t i = 0; i < merged.size(); i += stride) sub.push_back(merged[i]);
+    for (std::size_t i = 0; i < merged.size(); i += stride) {
+        sub.push_back(merged[i]);
+        if (normals) sub_n.push_back((*normals)[i]);
+    }
+    // The coarse stages start millimetres and degrees off: normals would refuse the right correspondences.
     const IcpResult first = icp_point_to_plane(sub, reference, Eigen::Isometry3d::Identity(), coarse);
     IcpSettings is;
     is.max_distances = {fine};
     is.max_iterations = 20;
-    std::vector<Eigen::Vector3d> last;
+    std::vector<Eigen::Vector3d> last, last_n;
     const std::size_t stride_last = std::max<std::size_t>(1, merged.size() / 60000);
-    for (std::size_t i = 0; i < merged.size(); i += stride_last) last.push_back(merged[i]);
-    IcpResult icp = icp_point_to_plane(last, reference, first.T_target_source, is);
+    for (std::size_t i = 0; i < merged.size(); i += stride_last) {
+        last.push_back(merged[i]);
+        if (normals) last_n.push_back((*normals)[i]);
+    }
+    IcpResult icp = icp_point_to_plane(last, reference, first.T_target_source, is, normals ? &last_n : nullptr);
     icp.iterations += first.iterations;
     fit.iterations = icp.iterations;
     fit.T_correction = icp.T_target_source.inverse();

@@ -30,8 +30,10 @@ struct WorkpieceFit {
 };
 
 /// Fits the nominal reference surfaces (oriented samples at nominal position, machine frame) to the merged
-/// workpiece points (machine frame, axes at 0), starting at nominal.
+/// workpiece points (machine frame, axes at 0), starting at nominal. `normals` (optional, the points'
+/// normals) keep points of faces that meet a reference surface at its edge off that surface in the last stage.
 WorkpieceFit fit_reference_surfaces(const std::vector<Eigen::Vector3d>& merged, const Surface& reference,
-                                    const WorkpieceFitSettings& settings);
+                                    const WorkpieceFitSettings& settings,
+                                    const std::vector<Eigen::Vector3d>* normals = nullptr);
 
 }  // namespace partloc

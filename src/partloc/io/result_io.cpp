@@ -58,6 +58,7 @@ Json scan_json(const ScanResult& s, const Scan* scan) {
     j["rmse"] = number(s.rmse);
     j["T_machine_scan"] = s.registered ? matrix(s.T_machine_scan) : Json(nullptr);
     j["message"] = s.message;
+    j["warnings"] = s.warnings;
     Json axes = Json::object();
     if (scan)
         for (const auto& [name, value] : scan->axes) axes[name] = number(value);

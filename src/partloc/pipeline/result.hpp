@@ -22,6 +22,9 @@ struct ScanResult {
     /// Maps scan points to the machine frame at the scan's axis values (where the fixed bodies are).
     Eigen::Isometry3d T_machine_scan = Eigen::Isometry3d::Identity();
     std::string message;  ///< why it was rejected; empty when registered
+    std::vector<std::string> warnings;  ///< registered, but something a person should know (a fiducial left out)
+    /// Information of T_machine_scan (twist [w, v] in the machine frame) from the joint fit: JtJ / noise^2.
+    Matrix6d information = Matrix6d::Zero();
     std::size_t points = 0;          ///< valid points in the scan
     double point_spacing = 0.0;      ///< used for this scan (given or estimated), job units
     double noise = 0.0;              ///< used for this scan (given or estimated), job units

@@ -169,13 +169,24 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
                 Hypothesis h;
                 h.source = &c;
                 h.T_machine_scan = fiducial_at(job.machine, job.fiducials[k], scan.axes) * c.T_scan_fiducial.inverse();
+                // Refined on every fiducial at once before the others are judged: one fiducial seen with a
+                // weakly held direction can be off by tenths of a millimetre, enough to make the scan seem to
+                // contradict another fiducial that is really there.
+                if (models.size() > 1) {
+                    std::vector<const PreparedModel*> all;
+                    std::vector<Eigen::Isometry3d> poses;
+                    for (std::size_t g = 0; g < models.size(); ++g) {
+                        all.push_back(&models[g]);
+                        poses.push_back(fiducial_at(job.machine, job.fiducials[g], scan.axes));
+                    }
+                    const ScanPoseFit joint = fit_scan_pose(ps, all, poses, h.T_machine_scan, ls, 0.5 * sampling);
+                    if (joint.ok && pose_error(joint.T_machine_scan, h.T_machine_scan).translation < sampling)
+                        h.T_machine_scan = joint.T_machine_scan;
+                }
                 for (std::size_t g = 0; g < models.size(); ++g) {
-                    const FiducialFit e =
-                        g == k ? c
-                               : evaluate_model(ps, models[g],
-                                                h.T_machine_scan.inverse() *
-                                                    fiducial_at(job.machine, job.fiducials[g], scan.axes),
-                                                ls);
+                    const FiducialFit e = evaluate_model(
+                        ps, models[g], h.T_machine_scan.inverse() * fiducial_at(job.machine, job.fiducials[g], scan.axes),
+                        ls);
                     if (e.seen_through >= 20 && e.violation > 4.0 * ls.max_violation) {
                         h.refuted = "with " + job.fiducials[k].name + " as found, the scan contradicts " +
                                     fmt("%.0f%% of ", 100 * e.violation) + job.fiducials[g].name +
@@ -187,6 +198,9 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
                         h.names.push_back(job.fiducials[g].name);
                     }
                 }
+                if (h.refuted.empty() && h.names.empty())
+                    h.refuted = "with " + job.fiducials[k].name + " as found and refined on all fiducials, none passes "
+                                "its checks";
                 hyps.push_back(std::move(h));
             }
         const Hypothesis* top = nullptr;
@@ -210,12 +224,75 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
                 return;
             }
         }
-        const Eigen::Isometry3d T_machine_scan = top->T_machine_scan;
+        // Every fiducial the winning hypothesis explains fixes the scan together (issue 4). Each one's own fit
+        // must agree with the others' within what the noise explains; one that does not has moved or was
+        // probed wrong.
+        std::vector<std::size_t> in_view;
+        for (const auto& name : top->names)
+            for (std::size_t k = 0; k < models.size(); ++k)
+                if (job.fiducials[k].name == name) in_view.push_back(k);
+        auto joint_fit = [&](const std::vector<std::size_t>& ks) {
+            std::vector<const PreparedModel*> ms;
+            std::vector<Eigen::Isometry3d> poses;
+            for (std::size_t k : ks) {
+                ms.push_back(&models[k]);
+                poses.push_back(fiducial_at(job.machine, job.fiducials[k], scan.axes));
+            }
+            return fit_scan_pose(ps, ms, poses, top->T_machine_scan, ls);
+        };
+        ScanPoseFit joint = joint_fit(in_view);
+        const double noise = work[i].scale.noise;
+        // How far fiducial k's own fit, started at `T`, moves the scan: at the fiducial, and in rotation.
+        struct Disagreement {
+            std::size_t k;
+            double shift, turn_deg;
+        };
+        auto disagreements = [&](const Eigen::Isometry3d& T) {
+            std::vector<Disagreement> out;
+            for (std::size_t k : in_view) {
+                const Eigen::Isometry3d F = fiducial_at(job.machine, job.fiducials[k], scan.axes);
+                const ScanPoseFit own = fit_scan_pose(ps, {&models[k]}, {F}, T, ls, 0.5 * models[k].sampling);
+                if (!own.ok) continue;
+                const Eigen::Isometry3d D = own.T_machine_scan * T.inverse();
+                const Eigen::Vector3d c = F * models[k].dense.center;
+                const double shift = (D * c - c).norm(), turn = rotation_angle_deg(D.linear());
+                const double turn_tol = 3.0 * noise / (0.5 * models[k].dense.diameter) * 180.0 / M_PI;
+                if (shift > 3.0 * noise || turn > turn_tol) out.push_back({k, shift, turn});
+            }
+            return out;
+        };
+        if (joint.ok && in_view.size() >= 2) {
+            const auto bad = disagreements(joint.T_machine_scan);
+            if (!bad.empty() && in_view.size() >= 3 && bad.size() == 1) {
+                // The others agree: this one moved or was probed wrong. Fit without it, and say so.
+                const auto& b = bad.front();
+                std::vector<std::size_t> rest;
+                for (std::size_t k : in_view)
+                    if (k != b.k) rest.push_back(k);
+                const ScanPoseFit without = joint_fit(rest);
+                if (without.ok) {
+                    r.warnings.push_back("fiducial " + job.fiducials[b.k].name + " disagrees with the others" +
+                                         fmt(" by %.3g at the fiducial and %.3g deg", b.shift, b.turn_deg) +
+                                         ": it moved or was probed wrong; left out of this scan's fit");
+                    in_view = rest;
+                    joint = without;
+                }
+            } else if (!bad.empty()) {
+                std::string names;
+                for (std::size_t k : in_view) names += (names.empty() ? "" : " and ") + job.fiducials[k].name;
+                r.message = "fiducials " + names + " disagree" + fmt(" by up to %.3g", bad.front().shift) +
+                            " here: one of them moved or was probed wrong";
+                return;
+            }
+        }
+        const Eigen::Isometry3d T_machine_scan = joint.ok ? joint.T_machine_scan : top->T_machine_scan;
         r.registered = true;
-        r.fiducials = top->names;
+        r.fiducials.clear();
+        for (std::size_t k : in_view) r.fiducials.push_back(job.fiducials[k].name);
         r.T_machine_scan = T_machine_scan;
         r.score = top->source->score;
-        r.rmse = top->source->rmse;
+        r.rmse = joint.ok ? joint.rmse : top->source->rmse;
+        if (joint.ok) r.information = joint.JtJ / std::max(noise * noise, 1e-30);
         for (auto& f : r.fits)
             if (f.fiducial == top->source->fiducial) f = *top->source;
 
@@ -281,7 +358,8 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     WorkpieceFitSettings wfs;
     wfs.noise = median_of(noises);
     wfs.spacing = spacing;
-    const WorkpieceFit fit = fit_reference_surfaces(merged->points_, reference, wfs);
+    const WorkpieceFit fit = fit_reference_surfaces(merged->points_, reference, wfs,
+                                                    merged->HasNormals() ? &merged->normals_ : nullptr);
     w.rmse = fit.rmse;
     w.points = merged->points_.size();
     w.inliers = fit.inliers;
