@@ -47,6 +47,7 @@ WorkpieceFit fit_reference_surfaces(const std::vector<Eigen::Vector3d>& merged, 
     IcpResult icp = icp_point_to_plane(last, reference, first.T_target_source, is, normals ? &last_n : nullptr);
     icp.iterations += first.iterations;
     fit.iterations = icp.iterations;
+    fit.distance = fine;
     fit.T_correction = icp.T_target_source.inverse();
     fit.rmse = icp.rmse;
     fit.inliers = icp.inliers;

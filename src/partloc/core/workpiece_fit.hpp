@@ -27,6 +27,7 @@ struct WorkpieceFit {
     double conditioning = 0.0;
     Matrix6d JtJ = Matrix6d::Zero();  ///< in the nominal reference frame (machine), twist [w, v]
     int iterations = 0;
+    double distance = 0.0;  ///< the last stage's correspondence distance
 };
 
 /// Fits the nominal reference surfaces (oriented samples at nominal position, machine frame) to the merged

@@ -107,6 +107,17 @@ Json workpiece_json(const Job& job, const WorkpieceResult& w) {
     j["located"] = w.located;
     j["message"] = w.message;
     j["nominal"] = pose_json(nominal);
+    const Uncertainty& u = w.uncertainty;
+    if (u.available) {
+        j["uncertainty_95"] = {{"origin", vector3(u.origin)}, {"euler_xyz_deg", vector3(u.euler_deg)}};
+        j["uncertainty_parts"] = {
+            {"sigma_from_scans", {{"origin", vector3(u.origin_scans)}, {"euler_xyz_deg", vector3(u.euler_scans)}}},
+            {"sigma_from_probing", {{"origin", vector3(u.origin_probing)}, {"euler_xyz_deg", vector3(u.euler_probing)}}},
+            {"sigma_from_noise", {{"origin", vector3(u.origin_noise)}, {"euler_xyz_deg", vector3(u.euler_noise)}}},
+            {"scans", u.scans}};
+    } else {
+        j["uncertainty_95"] = nullptr;  // fewer than three registered scans: no honest estimate
+    }
     return j;
 }
 

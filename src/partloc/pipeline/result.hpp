@@ -32,6 +32,18 @@ struct ScanResult {
     double seconds = 0.0;
 };
 
+/// Half-widths of 95 % intervals of the located pose (pipeline/uncertainty.hpp), and the 1-sigma parts they
+/// come from (origin in job units, angles in degrees).
+struct Uncertainty {
+    bool available = false;
+    Eigen::Vector3d origin = Eigen::Vector3d::Zero();     ///< 95 % half-widths of origin x, y, z
+    Eigen::Vector3d euler_deg = Eigen::Vector3d::Zero();  ///< 95 % half-widths of euler_xyz_deg a, b, c
+    Eigen::Vector3d origin_scans = Eigen::Vector3d::Zero(), euler_scans = Eigen::Vector3d::Zero();    ///< jackknife
+    Eigen::Vector3d origin_probing = Eigen::Vector3d::Zero(), euler_probing = Eigen::Vector3d::Zero();
+    Eigen::Vector3d origin_noise = Eigen::Vector3d::Zero(), euler_noise = Eigen::Vector3d::Zero();
+    int scans = 0;  ///< scans in the jackknife
+};
+
 struct WorkpieceResult {
     bool located = false;
     std::string message;  ///< why it was not located; empty when located
@@ -41,6 +53,7 @@ struct WorkpieceResult {
     std::size_t points = 0;   ///< merged workpiece points used in the fit
     std::size_t inliers = 0;  ///< of those, the points on the reference surfaces
     Matrix6d information = Matrix6d::Zero();
+    Uncertainty uncertainty;
 };
 
 struct JobResult {

@@ -16,6 +16,7 @@
 #include "partloc/core/localize.hpp"
 #include "partloc/core/stock.hpp"
 #include "partloc/core/workpiece_fit.hpp"
+#include "partloc/pipeline/uncertainty.hpp"
 
 namespace partloc {
 
@@ -372,6 +373,24 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     w.located = true;
     w.T_machine_workpiece = fit.T_correction * job.workpiece.T_machine_workpiece;
     result.located = true;
+    {
+        UncertaintyInputs ui;
+        for (std::size_t i = 0; i < job.scans.size(); ++i) {
+            if (!result.scans[i].registered) continue;
+            ui.scan_points.push_back(work[i].workpiece_points);
+            std::vector<std::size_t> used;
+            for (const auto& name : result.scans[i].fiducials)
+                for (std::size_t k = 0; k < job.fiducials.size(); ++k)
+                    if (job.fiducials[k].name == name) used.push_back(k);
+            ui.scan_fiducials.push_back(used);
+        }
+        ui.reference = &reference;
+        ui.T_correction = fit.T_correction;
+        ui.fit_distance = fit.distance;
+        ui.noise = wfs.noise;
+        ui.JtJ = fit.JtJ;
+        estimate_uncertainty(job, ui, w);
+    }
 
     if (job.workpiece.final_part && job.workpiece.final_part->mesh) {
         auto located = std::make_shared<open3d::geometry::TriangleMesh>(*job.workpiece.final_part->mesh);

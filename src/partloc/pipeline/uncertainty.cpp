@@ -1,0 +1,150 @@
+#include "partloc/pipeline/uncertainty.hpp"
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
+
+#include "partloc/core/icp.hpp"
+
+namespace partloc {
+
+namespace {
+
+/// Two-sided 95 % quantile of Student's t with `dof` degrees of freedom.
+double t95(int dof) {
+    static const double table[] = {12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228,
+                                   2.201,  2.179, 2.160, 2.145, 2.131, 2.120, 2.110, 2.101, 2.093, 2.086,
+                                   2.080,  2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048, 2.045, 2.042};
+    if (dof < 1) return table[0];
+    if (dof <= 30) return table[dof - 1];
+    return 1.96 + 2.4 / dof;  // close to the exact values above 30
+}
+
+struct Pose6 {
+    Eigen::Vector3d origin, euler;
+};
+
+Pose6 pose6(const Eigen::Isometry3d& T) { return {T.translation(), euler_xyz_deg(T.linear())}; }
+
+Eigen::Vector3d euler_difference(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+    return Eigen::Vector3d(wrap_deg(a.x() - b.x()), wrap_deg(a.y() - b.y()), wrap_deg(a.z() - b.z()));
+}
+
+Eigen::AlignedBox3d model_box(const ModelSource& m) {
+    Eigen::AlignedBox3d box;
+    if (m.mesh)
+        for (const auto& v : m.mesh->vertices_) box.extend(v);
+    if (m.points)
+        for (const auto& v : m.points->points_) box.extend(v);
+    return box;
+}
+
+}  // namespace
+
+void estimate_uncertainty(const Job& job, const UncertaintyInputs& in, WorkpieceResult& w) {
+    Uncertainty& u = w.uncertainty;
+    u = Uncertainty{};
+    const int n = static_cast<int>(in.scan_points.size());
+    u.scans = n;
+    // The jackknife needs redundancy: with fewer than three scans there is no honest estimate of how much
+    // one scan moves the answer.
+    if (!w.located || n < 3 || !in.reference) return;
+    const Pose6 full = pose6(w.T_machine_workpiece);
+
+    // The scans: the part fitted again without each one, on at most 8000 points of each.
+    std::vector<std::vector<Eigen::Vector3d>> pts(n), nrm(n);
+    for (int i = 0; i < n; ++i) {
+        const auto& c = *in.scan_points[i];
+        const std::size_t stride = std::max<std::size_t>(1, c.points_.size() / 8000);
+        for (std::size_t k = 0; k < c.points_.size(); k += stride) {
+            pts[i].push_back(c.points_[k]);
+            if (c.HasNormals()) nrm[i].push_back(c.normals_[k]);
+        }
+    }
+    IcpSettings is;
+    is.max_distances = {in.fit_distance};
+    is.max_iterations = 20;
+    std::vector<Pose6> loo;
+    for (int i = 0; i < n; ++i) {
+        std::vector<Eigen::Vector3d> p, q;
+        bool normals = true;
+        for (int j = 0; j < n; ++j) {
+            if (j == i) continue;
+            p.insert(p.end(), pts[j].begin(), pts[j].end());
+            q.insert(q.end(), nrm[j].begin(), nrm[j].end());
+            normals = normals && nrm[j].size() == pts[j].size();
+        }
+        const IcpResult r = icp_point_to_plane(p, *in.reference, in.T_correction.inverse(), is, normals ? &q : nullptr);
+        if (r.inliers < 100) continue;
+        loo.push_back(pose6(r.T_target_source.inverse() * w.T_machine_workpiece_nominal));
+    }
+    if (static_cast<int>(loo.size()) < 3) return;
+    const int m = static_cast<int>(loo.size());
+    Eigen::Vector3d mo = Eigen::Vector3d::Zero(), me = Eigen::Vector3d::Zero();
+    for (const auto& l : loo) {
+        mo += l.origin;
+        me += euler_difference(l.euler, full.euler);
+    }
+    mo /= m;
+    me /= m;
+    Eigen::Vector3d vo = Eigen::Vector3d::Zero(), ve = Eigen::Vector3d::Zero();
+    for (const auto& l : loo) {
+        vo += (l.origin - mo).cwiseAbs2();
+        ve += (euler_difference(l.euler, full.euler) - me).cwiseAbs2();
+    }
+    const double jk = (m - 1.0) / m;
+    u.origin_scans = (jk * vo).cwiseSqrt();
+    u.euler_scans = (jk * ve).cwiseSqrt();
+
+    // The probing: each fiducial's share of the registrations; an error in its pose moves the workpiece by
+    // the translation plus the rotation times the lever arm from the fiducial to the workpiece's origin.
+    const double mm = millimetres_per_unit(job.units);
+    Eigen::Vector3d po = Eigen::Vector3d::Zero(), pe = Eigen::Vector3d::Zero();
+    for (std::size_t f = 0; f < job.fiducials.size(); ++f) {
+        double share = 0.0;
+        for (const auto& used : in.scan_fiducials)
+            if (std::find(used.begin(), used.end(), f) != used.end()) share += 1.0 / used.size();
+        share /= n;
+        if (share <= 0) continue;
+        const auto& fid = job.fiducials[f];
+        const double sigma = fid.pose_sigma > 0 ? fid.pose_sigma : 0.005 / mm;
+        const auto box = model_box(fid.model);
+        const double half = std::max(0.5 * box.diagonal().norm(), 1e-9);
+        const double sr = sigma / half;  // radians
+        const Eigen::Vector3d r = full.origin - fid.T_machine_fiducial * box.center();
+        for (int a = 0; a < 3; ++a) {
+            const double arm2 = r.squaredNorm() - r(a) * r(a);
+            po(a) += share * share * (sigma * sigma + sr * sr * arm2);
+            pe(a) += share * share * sr * sr;
+        }
+    }
+    u.origin_probing = po.cwiseSqrt();
+    u.euler_probing = pe.cwiseSqrt() * 180.0 / M_PI;
+
+    // The noise: the fit's information matrix.
+    const Matrix6d info = in.JtJ / std::max(in.noise * in.noise, 1e-30);
+    Eigen::SelfAdjointEigenSolver<Matrix6d> es(info);
+    if (es.eigenvalues()(0) > 0) {
+        const Matrix6d cov = es.eigenvectors() * es.eigenvalues().cwiseInverse().asDiagonal() * es.eigenvectors().transpose();
+        Eigen::Matrix<double, 3, 6> J;
+        const Eigen::Vector3d& p = full.origin;
+        Eigen::Matrix3d px;
+        px << 0, -p.z(), p.y(), p.z(), 0, -p.x(), -p.y(), p.x(), 0;
+        J << -px, Eigen::Matrix3d::Identity();
+        const Eigen::Matrix3d co = J * cov * J.transpose();
+        u.origin_noise = co.diagonal().cwiseMax(0.0).cwiseSqrt();
+        u.euler_noise = cov.topLeftCorner<3, 3>().diagonal().cwiseMax(0.0).cwiseSqrt() * 180.0 / M_PI;
+    }
+
+    const double t = t95(m - 1);
+    for (int a = 0; a < 3; ++a) {
+        u.origin(a) = std::sqrt(std::pow(t * u.origin_scans(a), 2) + std::pow(1.96 * u.origin_probing(a), 2) +
+                                std::pow(1.96 * u.origin_noise(a), 2));
+        u.euler_deg(a) = std::sqrt(std::pow(t * u.euler_scans(a), 2) + std::pow(1.96 * u.euler_probing(a), 2) +
+                                   std::pow(1.96 * u.euler_noise(a), 2));
+    }
+    u.scans = m;
+    u.available = true;
+}
+
+}  // namespace partloc

@@ -1,0 +1,39 @@
+#pragma once
+// How far the located workpiece may be from the truth (issue 4): half-widths of 95 % intervals of its origin
+// and Euler angles, from three sources that add:
+//  - the scans: each registered scan brings its own registration error and its own noise and view. Fitting
+//    the part again with each scan left out (the jackknife over scans) measures how much the answer moves
+//    with them, bias included, which the fit's information matrix alone does not: edge effects and
+//    registration errors are not independent per point, so 1/sqrt(points) is far too optimistic;
+//  - the fiducials' probing (fiducials[].pose_sigma): an error in a fiducial's probed pose moves every scan
+//    it registers the same way, so it does not average out over scans;
+//  - the noise of the points, from the fit's information matrix (a floor, small in practice).
+#include <Eigen/Geometry>
+#include <memory>
+#include <vector>
+
+#include <open3d/geometry/PointCloud.h>
+
+#include "partloc/core/geometry.hpp"
+#include "partloc/core/surface.hpp"
+#include "partloc/pipeline/job.hpp"
+#include "partloc/pipeline/result.hpp"
+
+namespace partloc {
+
+struct UncertaintyInputs {
+    /// Each registered scan's workpiece points (machine frame, axes at 0; normals if available).
+    std::vector<std::shared_ptr<const open3d::geometry::PointCloud>> scan_points;
+    /// For each of those scans: the fiducials that registered it (indices into job.fiducials).
+    std::vector<std::vector<std::size_t>> scan_fiducials;
+    const Surface* reference = nullptr;                  ///< nominal reference surfaces
+    Eigen::Isometry3d T_correction = Eigen::Isometry3d::Identity();  ///< the fit: located = T_correction * nominal
+    double fit_distance = 0.0;   ///< the fit's last correspondence distance
+    double noise = 0.0;          ///< scan noise, 1 sigma
+    Matrix6d JtJ = Matrix6d::Zero();  ///< the fit's, machine frame, twist [w, v]
+};
+
+/// Fills result.workpiece.uncertainty (needs result.workpiece.T_machine_workpiece located).
+void estimate_uncertainty(const Job& job, const UncertaintyInputs& in, WorkpieceResult& workpiece);
+
+}  // namespace partloc
