@@ -157,11 +157,39 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         // fiducial that moved). Among the rest, the one that explains most points wins (§3.4.1: the best
         // fiducial wins, here the best constellation).
         struct Hypothesis {
-            Eigen::Isometry3d T_machine_scan;
+            std::size_t source_k = 0;
+            Eigen::Isometry3d T_initial;     ///< from the source fiducial alone
+            Eigen::Isometry3d T_machine_scan;  ///< refined on every fiducial
             double support = 0.0;
             std::vector<std::string> names;
+            std::vector<std::size_t> contradicted;  ///< fiducials the scan contradicts where this puts them
             std::string refuted;
+            int corroborated = 0;  ///< other fiducials whose own fits put the scanner about here
             const FiducialFit* source = nullptr;
+        };
+        std::vector<const PreparedModel*> all_models;
+        std::vector<Eigen::Isometry3d> all_poses;
+        for (std::size_t g = 0; g < models.size(); ++g) {
+            all_models.push_back(&models[g]);
+            all_poses.push_back(fiducial_at(job.machine, job.fiducials[g], scan.axes));
+        }
+        auto judge_at = [&](Hypothesis& h, const Eigen::Isometry3d& T) {
+            h.T_machine_scan = T;
+            h.support = 0.0;
+            h.names.clear();
+            h.contradicted.clear();
+            bool source_ok = false;
+            for (std::size_t g = 0; g < models.size(); ++g) {
+                const FiducialFit e = evaluate_model(ps, models[g], T.inverse() * all_poses[g], ls);
+                if (e.seen_through >= 20 && e.violation > 4.0 * ls.max_violation) {
+                    h.contradicted.push_back(g);
+                } else if (e.accepted) {
+                    h.support += support(e);
+                    h.names.push_back(job.fiducials[g].name);
+                    source_ok = source_ok || g == h.source_k;
+                }
+            }
+            return source_ok;
         };
         std::vector<Hypothesis> hyps;
         for (std::size_t k = 0; k < models.size(); ++k)
@@ -169,44 +197,52 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
                 if (!c.accepted) continue;
                 Hypothesis h;
                 h.source = &c;
-                h.T_machine_scan = fiducial_at(job.machine, job.fiducials[k], scan.axes) * c.T_scan_fiducial.inverse();
+                h.source_k = k;
+                h.T_initial = all_poses[k] * c.T_scan_fiducial.inverse();
                 // Refined on every fiducial at once before the others are judged: one fiducial seen with a
                 // weakly held direction can be off by tenths of a millimetre, enough to make the scan seem to
-                // contradict another fiducial that is really there.
+                // contradict another fiducial that is really there. If the refinement loses the source
+                // fiducial itself (another one, moved, pulled it away), it is judged where its source put it.
+                bool judged = false;
                 if (models.size() > 1) {
-                    std::vector<const PreparedModel*> all;
-                    std::vector<Eigen::Isometry3d> poses;
-                    for (std::size_t g = 0; g < models.size(); ++g) {
-                        all.push_back(&models[g]);
-                        poses.push_back(fiducial_at(job.machine, job.fiducials[g], scan.axes));
-                    }
-                    const ScanPoseFit joint = fit_scan_pose(ps, all, poses, h.T_machine_scan, ls, 0.5 * sampling);
-                    if (joint.ok && pose_error(joint.T_machine_scan, h.T_machine_scan).translation < sampling)
-                        h.T_machine_scan = joint.T_machine_scan;
+                    const ScanPoseFit joint = fit_scan_pose(ps, all_models, all_poses, h.T_initial, ls, 0.5 * sampling);
+                    if (joint.ok && pose_error(joint.T_machine_scan, h.T_initial).translation < sampling)
+                        judged = judge_at(h, joint.T_machine_scan);
                 }
-                for (std::size_t g = 0; g < models.size(); ++g) {
-                    const FiducialFit e = evaluate_model(
-                        ps, models[g], h.T_machine_scan.inverse() * fiducial_at(job.machine, job.fiducials[g], scan.axes),
-                        ls);
-                    if (e.seen_through >= 20 && e.violation > 4.0 * ls.max_violation) {
-                        h.refuted = "with " + job.fiducials[k].name + " as found, the scan contradicts " +
-                                    fmt("%.0f%% of ", 100 * e.violation) + job.fiducials[g].name +
-                                    " where its probed pose puts it (a look-alike, or it moved or was probed wrong)";
-                        break;
-                    }
-                    if (e.accepted) {
-                        h.support += support(e);
-                        h.names.push_back(job.fiducials[g].name);
-                    }
-                }
-                if (h.refuted.empty() && h.names.empty())
-                    h.refuted = "with " + job.fiducials[k].name + " as found and refined on all fiducials, none passes "
-                                "its checks";
+                if (!judged) judge_at(h, h.T_initial);
                 hyps.push_back(std::move(h));
             }
+        // Two fiducials whose own fits put the scanner at about the same place corroborate each other: a
+        // look-alike rarely has a second look-alike in the right place beside it. Where such a hypothesis
+        // contradicts a third fiducial (or one of them, slightly), that fiducial has moved or was probed
+        // wrong; it is named and left out, instead of the scan being lost or, worse, a lone look-alike
+        // winning.
+        for (auto& h : hyps)
+            for (const auto& o : hyps) {
+                if (o.source_k == h.source_k) continue;
+                const Eigen::Isometry3d D = o.T_initial * h.T_initial.inverse();
+                const Eigen::Vector3d c = all_poses[h.source_k] * models[h.source_k].dense.center;
+                if (rotation_angle_deg(D.linear()) < 2.0 && (D * c - c).norm() < 2.0 * sampling) ++h.corroborated;
+            }
+        for (auto& h : hyps) {
+            if (h.names.size() >= 2) h.corroborated = std::max<int>(h.corroborated, 1);
+            if (!h.contradicted.empty() && h.corroborated == 0) {
+                const std::size_t g = h.contradicted.front();
+                h.refuted = "with " + job.fiducials[h.source_k].name + " as found, the scan contradicts " +
+                            job.fiducials[g].name +
+                            " where its probed pose puts it (a look-alike, or it moved or was probed wrong)";
+            } else if (h.names.empty()) {
+                h.refuted = "with " + job.fiducials[h.source_k].name + " as found, no fiducial passes its checks";
+            }
+        }
+        // Corroborated hypotheses first, then by support.
         const Hypothesis* top = nullptr;
-        for (const auto& h : hyps)
-            if (h.refuted.empty() && (!top || h.support > top->support)) top = &h;
+        for (const auto& h : hyps) {
+            if (!h.refuted.empty()) continue;
+            if (!top || (h.corroborated > 0) > (top->corroborated > 0) ||
+                ((h.corroborated > 0) == (top->corroborated > 0) && h.support > top->support))
+                top = &h;
+        }
         if (!top) {
             r.message = "no fiducial fits:";
             if (hyps.empty())
@@ -216,14 +252,53 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
             r.message.pop_back();
             return;
         }
+        auto names_of = [&](const std::vector<std::size_t>& ks) {
+            std::string n;
+            for (std::size_t k : ks) n += (n.empty() ? "" : " and ") + job.fiducials[k].name;
+            return n;
+        };
         for (const auto& h : hyps) {
             if (&h == top || !h.refuted.empty()) continue;
+            if (top->corroborated > 0 && h.corroborated == 0) continue;  // a lone fit does not outweigh two
             const PoseError e = pose_error(h.T_machine_scan, top->T_machine_scan);
             if ((e.rotation_deg > 1.0 || e.translation > 5.0 * sampling) && h.support >= ls.ambiguity * top->support) {
                 r.message = "ambiguous: two placements of the scanner explain the scan about equally well" +
                             fmt(" (%.3g deg, %.3g apart)", e.rotation_deg, e.translation);
                 return;
             }
+            // Two sets of fiducials, each agreeing within itself, that put the scanner apart by more than
+            // the noise explains: a fiducial that one set has and the other lacks moved or was probed wrong,
+            // and this scan cannot tell which.
+            if (h.corroborated > 0 && h.names != top->names) {
+                const Eigen::Isometry3d D = h.T_machine_scan * top->T_machine_scan.inverse();
+                const Eigen::Vector3d c = all_poses[top->source_k] * models[top->source_k].dense.center;
+                if ((D * c - c).norm() > 3.0 * work[i].scale.noise) {
+                    std::vector<std::size_t> differ;
+                    for (std::size_t g = 0; g < models.size(); ++g) {
+                        const auto& n = job.fiducials[g].name;
+                        const bool a = std::count(top->names.begin(), top->names.end(), n) > 0;
+                        const bool b = std::count(h.names.begin(), h.names.end(), n) > 0;
+                        if (a != b) differ.push_back(g);
+                    }
+                    r.message = "fiducials " + names_of(differ) + fmt(" disagree by %.3g here", (D * c - c).norm()) +
+                                ": one of them moved or was probed wrong";
+                    return;
+                }
+            }
+        }
+        if (!top->contradicted.empty()) {
+            if (top->names.size() < 2) {
+                // One fiducial against another: this scan cannot tell which of the two moved.
+                std::vector<std::size_t> both = {top->source_k};
+                both.insert(both.end(), top->contradicted.begin(), top->contradicted.end());
+                r.message = "fiducials " + names_of(both) +
+                            " disagree here: one of them moved or was probed wrong (see the other scans)";
+                return;
+            }
+            for (std::size_t g : top->contradicted)
+                r.warnings.push_back("fiducial " + job.fiducials[g].name +
+                                     " is not where its probed pose puts it, while " + std::to_string(top->names.size()) +
+                                     " others agree: it moved or was probed wrong; left out of this scan's fit");
         }
         // Every fiducial the winning hypothesis explains fixes the scan together (issue 4). Each one's own fit
         // must agree with the others' within what the noise explains; one that does not has moved or was
