@@ -241,6 +241,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     }
     WorkpieceResult& w = result.workpiece;
     w.T_machine_workpiece_nominal = job.workpiece.T_machine_workpiece;
+    w.fit = job.workpiece.fit == WorkpieceFitMode::Datums ? "datums" : "simultaneous";
     if (registered == 0) {
         w.message = "no scan could be registered to the machine";
         result.seconds = seconds_since(t0);
@@ -310,7 +311,6 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         ds.spacing = spacing;
         if (job.workpiece.fit == WorkpieceFitMode::Datums) {
             const DatumFit df = fit_datums(merged->points_, datums, fit.T_correction, ds);
-            w.fit = "datums";
             w.datums = df.datums;
             if (!df.ok) {
                 w.message = df.reason;
