@@ -160,15 +160,16 @@ TEST(DatumFit, HonoursThePrimaryWhereTheSimultaneousFitSplitsTheDifference) {
     const double z_sim = angle_deg(t.sim.linear().col(2), s.sim.linear().col(2));
     const PoseError t_sim = pose_error(t.sim, T_true), t_dat = pose_error(t.dat, T_true);
     const Eigen::Vector3d nA = plane_normal(cc.a, T_true.linear().col(2));
-    std::printf("tertiary tilted %.1f deg: primary axis moved %.6f deg (datums) vs %.5f deg (simultaneous); "
-                "secondary axis %.6f deg (datums); primary axis to the primary's own plane %.5f deg (datums) vs "
-                "%.5f deg (simultaneous); pose error %.4f mm %.5f deg (datums) vs %.4f mm %.5f deg "
-                "(simultaneous)\n",
-                tilt, z_dat, z_sim, y_dat, angle_deg(t.dat.linear().col(2), nA), angle_deg(t.sim.linear().col(2), nA),
-                t_dat.translation, t_dat.rotation_deg, t_sim.translation, t_sim.rotation_deg);
+    std::printf(
+        "tertiary tilted %.1f deg: primary axis moved %.6f deg (datums) vs %.5f deg (simultaneous); "
+        "secondary axis %.6f deg (datums); primary axis to the primary's own plane %.5f deg (datums) vs "
+        "%.5f deg (simultaneous); pose error %.4f mm %.5f deg (datums) vs %.4f mm %.5f deg "
+        "(simultaneous)\n",
+        tilt, z_dat, z_sim, y_dat, angle_deg(t.dat.linear().col(2), nA), angle_deg(t.sim.linear().col(2), nA),
+        t_dat.translation, t_dat.rotation_deg, t_sim.translation, t_sim.rotation_deg);
     for (const auto& d : t.datum_fit.datums)
-        std::printf("  datum %s: %zu points, rmse %.4f mm, %d dof, conditioning %.3f\n", d.name.c_str(), d.points,
-                    d.rmse, d.dof, d.conditioning);
+        std::printf("  datum %s: %zu points, rmse %.4f mm, %d dof, conditioning %.3f\n", d.name.c_str(),
+                    d.points, d.rmse, d.dof, d.conditioning);
     EXPECT_LT(z_dat, 0.001);
     EXPECT_LT(y_dat, 0.001);
     EXPECT_LT((t.dat.translation() - s.dat.translation()).norm(), 0.002);
@@ -189,7 +190,8 @@ TEST(DatumFit, HonoursThePrimaryWhereTheSimultaneousFitSplitsTheDifference) {
     EXPECT_LE(r[0].points, cc.a.size());
     EXPECT_NEAR(r[0].rmse, sigma, 0.1 * sigma);
     EXPECT_NEAR(r[1].rmse, sigma, 0.1 * sigma);
-    // The tertiary's residual shows its form error: 15 mm tall, 1 degree off, sqrt(sigma^2 + (15 tan 1 deg)^2 / 12).
+    // The tertiary's residual shows its form error: 15 mm tall, 1 degree off, sqrt(sigma^2 + (15 tan 1 deg)^2
+    // / 12).
     EXPECT_GT(r[2].rmse, 1.4 * sigma);
 
     // The residuals at the simultaneous pose, per datum: the primary pays for the compromise.
@@ -235,8 +237,9 @@ std::vector<Datum> datums_of(const sim::SimulatedJob& sj) {
     std::array<std::shared_ptr<open3d::geometry::TriangleMesh>, 3> parts;
     for (auto& p : parts) p = std::make_shared<open3d::geometry::TriangleMesh>();
     for (const auto& t : mesh.triangles_) {
-        const Eigen::Vector3d n =
-            (mesh.vertices_[t[1]] - mesh.vertices_[t[0]]).cross(mesh.vertices_[t[2]] - mesh.vertices_[t[0]]).normalized();
+        const Eigen::Vector3d n = (mesh.vertices_[t[1]] - mesh.vertices_[t[0]])
+                                      .cross(mesh.vertices_[t[2]] - mesh.vertices_[t[0]])
+                                      .normalized();
         for (int k = 0; k < 3; ++k)
             if (std::abs(n.dot(R.col(k))) > 0.999) {
                 auto& m = *parts[k];
@@ -287,11 +290,13 @@ class DatumCell : public ::testing::TestWithParam<int> {};
 TEST_P(DatumCell, BothFitsLocateTheTrueCornerFromTrulyRegisteredScans) {
     open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
     const int seed = GetParam();
-    const sim::SimulatedJob sj = seed > 0 ? sim::simulate_random_cell(seed) : sim::simulate_paper_test(-seed, 3);
+    const sim::SimulatedJob sj =
+        seed > 0 ? sim::simulate_random_cell(seed) : sim::simulate_paper_test(-seed, 3);
     const std::vector<Eigen::Vector3d> merged = merged_at_truth(sj);
     const double spacing = *sj.job.scanner.point_spacing, noise = *sj.job.scanner.noise;
     const auto& ref_mesh = *sj.job.workpiece.reference_surfaces.mesh;
-    const double ref_spacing = std::max(spacing, ref_mesh.GetAxisAlignedBoundingBox().GetExtent().norm() / 400.0);
+    const double ref_spacing =
+        std::max(spacing, ref_mesh.GetAxisAlignedBoundingBox().GetExtent().norm() / 400.0);
     const Surface reference = samples_of(ref_mesh, ref_spacing);
     std::vector<DatumSurface> datums;
     for (const auto& d : datums_of(sj)) datums.push_back({d.name, samples_of(*d.surfaces.mesh, ref_spacing)});
@@ -319,14 +324,15 @@ TEST_P(DatumCell, BothFitsLocateTheTrueCornerFromTrulyRegisteredScans) {
     Eigen::Matrix<double, 3, 6> Jo;
     Jo << -n_cross, Eigen::Matrix3d::Identity();
     const Eigen::Matrix3d cov_o = noise * noise * Jo * dat.covariance * Jo.transpose();
-    std::printf("%s (seed %d): %zu merged points, nominal off by %.3f mm %.3f deg; simultaneous error %.4f mm "
-                "%.5f deg; datums error %.4f mm %.5f deg (1-sigma origin bound %.4f mm)\n",
-                sj.truth.scenario.c_str(), seed, merged.size(), nominal.translation, nominal.rotation_deg,
-                e_sim.translation, e_sim.rotation_deg, e_dat.translation, e_dat.rotation_deg,
-                std::sqrt(cov_o.trace()));
+    std::printf(
+        "%s (seed %d): %zu merged points, nominal off by %.3f mm %.3f deg; simultaneous error %.4f mm "
+        "%.5f deg; datums error %.4f mm %.5f deg (1-sigma origin bound %.4f mm)\n",
+        sj.truth.scenario.c_str(), seed, merged.size(), nominal.translation, nominal.rotation_deg,
+        e_sim.translation, e_sim.rotation_deg, e_dat.translation, e_dat.rotation_deg,
+        std::sqrt(cov_o.trace()));
     for (const auto& d : dat.datums)
-        std::printf("  datum %s: %zu points, rmse %.4f mm, conditioning %.3f\n", d.name.c_str(), d.points, d.rmse,
-                    d.conditioning);
+        std::printf("  datum %s: %zu points, rmse %.4f mm, conditioning %.3f\n", d.name.c_str(), d.points,
+                    d.rmse, d.conditioning);
     EXPECT_LT(e_dat.translation, 0.05);
     EXPECT_LT(e_dat.rotation_deg, 0.03);
     EXPECT_LT(e_sim.translation, 0.05);
@@ -351,7 +357,8 @@ struct Folder {
     fs::path dir;
     Folder() {
         static std::atomic<int> n{0};
-        dir = fs::temp_directory_path() / ("partloc_test_datums_" + std::to_string(::getpid()) + "_" + std::to_string(n++));
+        dir = fs::temp_directory_path() /
+              ("partloc_test_datums_" + std::to_string(::getpid()) + "_" + std::to_string(n++));
         fs::remove_all(dir);
         fs::create_directories(dir);
     }
@@ -386,7 +393,8 @@ TEST(DatumJob, FieldsDefaultsAndErrors) {
     const std::string head =
         "fiducials: [{name: F, model: m.xyz, pose: {origin: [0, 0, 0]}}]\nscans: [m.xyz]\nworkpiece:\n";
     const std::string datums =
-        "  datums: [{name: A, surfaces: a.obj}, {name: B, surfaces: b.obj}, {name: C, surfaces: {file: c.xyz, units: mm}}]\n";
+        "  datums: [{name: A, surfaces: a.obj}, {name: B, surfaces: b.obj}, {name: C, surfaces: {file: "
+        "c.xyz, units: mm}}]\n";
 
     // Datums without reference surfaces: the fit defaults to datums, the reference is their union.
     Job job = io::load_job(f.write("job.yaml", head + datums));
@@ -399,8 +407,9 @@ TEST(DatumJob, FieldsDefaultsAndErrors) {
     EXPECT_GE(job.workpiece.reference_surfaces.points->points_.size(), 4u + 2 * 100);
 
     // All meshes: one mesh. fit: simultaneous is honoured.
-    job = io::load_job(f.write("job.yaml", head + "  datums: [{name: A, surfaces: a.obj}, {name: B, surfaces: b.obj}, "
-                                                  "{name: C, surfaces: a.obj}]\n  fit: simultaneous\n"));
+    job = io::load_job(
+        f.write("job.yaml", head + "  datums: [{name: A, surfaces: a.obj}, {name: B, surfaces: b.obj}, "
+                                   "{name: C, surfaces: a.obj}]\n  fit: simultaneous\n"));
     ASSERT_TRUE(job.workpiece.reference_surfaces.mesh);
     EXPECT_EQ(job.workpiece.reference_surfaces.mesh->triangles_.size(), 3u);
     EXPECT_EQ(job.workpiece.fit, WorkpieceFitMode::Simultaneous);
@@ -417,18 +426,23 @@ TEST(DatumJob, FieldsDefaultsAndErrors) {
                  "workpiece.fit: datums needs workpiece.datums");
     expect_error(f.write("job.yaml", head + datums + "  fit: best\n"),
                  "workpiece.fit: expected simultaneous or datums, found 'best'");
-    expect_error(f.write("job.yaml", head + "  datums: [{name: A, surfaces: a.obj}, {name: B, surfaces: b.obj}]\n"),
-                 "workpiece.datums: expected 3 datums (primary, secondary, tertiary), found 2 items");
-    expect_error(f.write("job.yaml", head + "  datums: [{name: A, surfaces: a.obj}, {name: A, surfaces: b.obj}, "
-                                            "{name: C, surfaces: a.obj}]\n"),
-                 "workpiece.datums[1].name: datum name 'A' is already used by workpiece.datums[0]");
-    expect_error(f.write("job.yaml", head + "  datums: [{name: A, surfaces: a.obj}, {name: B, surface: b.obj}, "
-                                            "{name: C, surfaces: a.obj}]\n"),
-                 "workpiece.datums[1].surface: unknown field");
-    expect_error(f.write("job.yaml", head + "  final_part: a.obj\n"), "workpiece.reference_surfaces: missing");
+    expect_error(
+        f.write("job.yaml", head + "  datums: [{name: A, surfaces: a.obj}, {name: B, surfaces: b.obj}]\n"),
+        "workpiece.datums: expected 3 datums (primary, secondary, tertiary), found 2 items");
+    expect_error(
+        f.write("job.yaml", head + "  datums: [{name: A, surfaces: a.obj}, {name: A, surfaces: b.obj}, "
+                                   "{name: C, surfaces: a.obj}]\n"),
+        "workpiece.datums[1].name: datum name 'A' is already used by workpiece.datums[0]");
+    expect_error(
+        f.write("job.yaml", head + "  datums: [{name: A, surfaces: a.obj}, {name: B, surface: b.obj}, "
+                                   "{name: C, surfaces: a.obj}]\n"),
+        "workpiece.datums[1].surface: unknown field");
+    expect_error(f.write("job.yaml", head + "  final_part: a.obj\n"),
+                 "workpiece.reference_surfaces: missing");
     try {
-        io::load_job(f.write("job.yaml", head + "  datums: [{name: A, surfaces: a.obj}, {name: B, surfaces: nope.stl}, "
-                                               "{name: C, surfaces: a.obj}]\n"));
+        io::load_job(f.write("job.yaml",
+                             head + "  datums: [{name: A, surfaces: a.obj}, {name: B, surfaces: nope.stl}, "
+                                    "{name: C, surfaces: a.obj}]\n"));
         ADD_FAILURE() << "a missing datum file must be an error";
     } catch (const io::InputError& e) {
         EXPECT_EQ(e.file(), "nope.stl") << e.what();
@@ -458,7 +472,8 @@ TEST(DatumJob, RunLocatesByTheDatumsAndReportsEach) {
     }
     Eigen::Isometry3d located = Eigen::Isometry3d::Identity();
     for (int r = 0; r < 4; ++r)
-        for (int c = 0; c < 4; ++c) located.matrix()(r, c) = j["workpiece"]["T_machine_workpiece"][r][c].get<double>();
+        for (int c = 0; c < 4; ++c)
+            located.matrix()(r, c) = j["workpiece"]["T_machine_workpiece"][r][c].get<double>();
     const PoseError e = pose_error(located, sj.truth.T_machine_workpiece);
     std::printf("partloc run with datums, random cell 12: origin error %.4f mm, rotation error %.5f deg\n",
                 e.translation, e.rotation_deg);

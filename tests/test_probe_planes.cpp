@@ -65,7 +65,8 @@ TEST(ProbePlanes, ExactPointsGiveTheExactFrame) {
     std::mt19937 rng(1);
     for (int trial = 0; trial < 50; ++trial) {
         const Eigen::Isometry3d T = random_pose(rng);
-        const ProbedFrame f = frame_from_probe_planes(probe_corner(T, 3, 25.0, 0.0, rng));  // the paper: 3 each
+        const ProbedFrame f =
+            frame_from_probe_planes(probe_corner(T, 3, 25.0, 0.0, rng));  // the paper: 3 each
         ASSERT_TRUE(f.ok) << f.reason;
         expect_same_pose(f.T, T, 1e-10);
         for (const auto& p : f.planes) EXPECT_LT(p.rms, 1e-10);
@@ -92,9 +93,10 @@ TEST(ProbePlanes, ProbingNoiseOfFiveMicronsMovesTheFrameLittle) {
         for (const auto& p : f.planes) mean_rms += p.rms / (3.0 * trials);
     }
     const double rms_t = std::sqrt(sum_t2 / trials), rms_r = std::sqrt(sum_r2 / trials);
-    std::printf("probe noise 0.005 mm, 8 points per plane, %d poses: origin error rms %.5f worst %.5f mm, "
-                "rotation error rms %.5f worst %.5f deg, mean plane rms %.5f mm\n",
-                trials, rms_t, worst_t, rms_r, worst_r, mean_rms);
+    std::printf(
+        "probe noise 0.005 mm, 8 points per plane, %d poses: origin error rms %.5f worst %.5f mm, "
+        "rotation error rms %.5f worst %.5f deg, mean plane rms %.5f mm\n",
+        trials, rms_t, worst_t, rms_r, worst_r, mean_rms);
     EXPECT_LT(rms_t, 0.015);
     EXPECT_LT(rms_r, 0.02);
     EXPECT_LT(worst_t, 0.05);
@@ -128,7 +130,8 @@ TEST(ProbePlanes, ConventionMatchesTheSimsModelFrames) {
             std::uniform_real_distribution<double> s(0.05, 0.95);
             for (int k = 0; k < 3; ++k)
                 for (int i = 0; i < 4; ++i)
-                    planes[k].push_back(T_machine_block * (faces[k].origin + s(rng) * faces[k].u + s(rng) * faces[k].v));
+                    planes[k].push_back(T_machine_block *
+                                        (faces[k].origin + s(rng) * faces[k].u + s(rng) * faces[k].v));
             const ProbedFrame f = frame_from_probe_planes(planes);
             ASSERT_TRUE(f.ok) << f.reason;
             expect_same_pose(f.T, T_machine_frame, 1e-10);
@@ -187,7 +190,8 @@ struct Folder {
     fs::path dir;
     Folder() {
         static std::atomic<int> n{0};
-        dir = fs::temp_directory_path() / ("partloc_test_probe_" + std::to_string(::getpid()) + "_" + std::to_string(n++));
+        dir = fs::temp_directory_path() /
+              ("partloc_test_probe_" + std::to_string(::getpid()) + "_" + std::to_string(n++));
         fs::remove_all(dir);
         fs::create_directories(dir);
         write("model.xyz", "0 0 0\n10 0 0\n0 10 0\n0 0 10\n");
@@ -208,7 +212,8 @@ std::string yaml_points(const std::vector<Eigen::Vector3d>& pts, double scale) {
     s.precision(12);
     s << "[";
     for (std::size_t i = 0; i < pts.size(); ++i)
-        s << (i ? ", " : "") << "[" << pts[i].x() * scale << ", " << pts[i].y() * scale << ", " << pts[i].z() * scale << "]";
+        s << (i ? ", " : "") << "[" << pts[i].x() * scale << ", " << pts[i].y() * scale << ", "
+          << pts[i].z() * scale << "]";
     s << "]";
     return s.str();
 }
@@ -222,10 +227,14 @@ std::string job_text(const std::string& units, const std::string& pose_a, const 
                      const std::string& extra_b = "") {
     return "units: " + units +
            "\nfiducials:\n"
-           "  - {name: A, model: model.xyz, pose: " + pose_a + "}\n"
-           "  - {name: B, model: model.xyz, pose: {origin: [1, 2, 3]}" + extra_b + "}\n"
-           "workpiece:\n  reference_surfaces: model.xyz\n  datum: " + datum +
-           "\nscans: [scan.xyz]\n";
+           "  - {name: A, model: model.xyz, pose: " +
+           pose_a +
+           "}\n"
+           "  - {name: B, model: model.xyz, pose: {origin: [1, 2, 3]}" +
+           extra_b +
+           "}\n"
+           "workpiece:\n  reference_surfaces: model.xyz\n  datum: " +
+           datum + "\nscans: [scan.xyz]\n";
 }
 
 void expect_error(const fs::path& job, const std::string& phrase) {
@@ -250,8 +259,10 @@ TEST(ProbePlanesJob, FiducialAndDatumPosesFromProbedPoints) {
     const Planes pw = probe_corner(T_w, 10, 40.0, 0.005, rng);
     for (const char* units : {"mm", "in"}) {
         SCOPED_TRACE(units);
-        const double scale = std::string(units) == "in" ? 1.0 / 25.4 : 1.0;  // points written in the job's units
-        const Job job = io::load_job(f.write("job.yaml", job_text(units, yaml_planes(pa, scale), yaml_planes(pw, scale))));
+        const double scale =
+            std::string(units) == "in" ? 1.0 / 25.4 : 1.0;  // points written in the job's units
+        const Job job = io::load_job(
+            f.write("job.yaml", job_text(units, yaml_planes(pa, scale), yaml_planes(pw, scale))));
         const auto back = [&](const Eigen::Isometry3d& T) {  // to mm
             Eigen::Isometry3d M = T;
             M.translation() /= scale;
@@ -259,8 +270,9 @@ TEST(ProbePlanesJob, FiducialAndDatumPosesFromProbedPoints) {
         };
         const PoseError ea = pose_error(back(job.fiducials[0].T_machine_fiducial), T_a);
         const PoseError ew = pose_error(back(job.workpiece.T_machine_workpiece), T_w);
-        std::printf("%s job: fiducial A from probe_planes off by %.5f mm, %.5f deg; datum by %.5f mm, %.5f deg\n",
-                    units, ea.translation, ea.rotation_deg, ew.translation, ew.rotation_deg);
+        std::printf(
+            "%s job: fiducial A from probe_planes off by %.5f mm, %.5f deg; datum by %.5f mm, %.5f deg\n",
+            units, ea.translation, ea.rotation_deg, ew.translation, ew.rotation_deg);
         EXPECT_LT(ea.translation, 0.03);
         EXPECT_LT(ea.rotation_deg, 0.04);
         EXPECT_LT(ew.translation, 0.03);
@@ -285,9 +297,11 @@ TEST(ProbePlanesJob, FiducialAndDatumPosesFromProbedPoints) {
         ASSERT_EQ(j["probed_poses"].size(), 2u);
         EXPECT_EQ(j["probed_poses"][1]["field"], "workpiece.datum");
         EXPECT_EQ(j["probed_poses"][0]["planes"].size(), 3u);
-        EXPECT_NEAR(j["probed_poses"][0]["planes"][2]["rms"].get<double>(), job.probed_poses[0].frame.planes[2].rms, 1e-9);
+        EXPECT_NEAR(j["probed_poses"][0]["planes"][2]["rms"].get<double>(),
+                    job.probed_poses[0].frame.planes[2].rms, 1e-9);
     }
-    const Job given = io::load_job(f.write("job.yaml", job_text("mm", yaml_planes(pa), "{origin: [0, 0, 0]}", ", pose_sigma: 0.02")));
+    const Job given = io::load_job(
+        f.write("job.yaml", job_text("mm", yaml_planes(pa), "{origin: [0, 0, 0]}", ", pose_sigma: 0.02")));
     EXPECT_DOUBLE_EQ(given.fiducials[1].pose_sigma, 0.02);
     EXPECT_EQ(given.probed_poses.size(), 1u);
 }
@@ -310,27 +324,33 @@ TEST(ProbePlanesJob, BadProbingIsOneLineNamingTheField) {
     p[2][4] += Eigen::Vector3d(0, 0, 5);
     expect_error(f.write("job.yaml", job_text("mm", datum, yaml_planes(p))),
                  "workpiece.datum.probe_planes[2]: the points are not on one plane");
-    expect_error(f.write("job.yaml", job_text("mm", "{probe_planes: [[[0, 0, 0], [1, 0, 0], [0, 1, 0]]]}", datum)),
-                 "fiducials[0].pose.probe_planes: expected 3 lists of probed points");
+    expect_error(
+        f.write("job.yaml", job_text("mm", "{probe_planes: [[[0, 0, 0], [1, 0, 0], [0, 1, 0]]]}", datum)),
+        "fiducials[0].pose.probe_planes: expected 3 lists of probed points");
     expect_error(f.write("job.yaml", job_text("mm", "{probe_planes: [[[0, 0]], [], []]}", datum)),
                  "fiducials[0].pose.probe_planes[0][0]: expected 3 numbers, found 2 items");
-    expect_error(f.write("job.yaml", job_text("mm", "{probe_planes: [[], [], []], origin: [0, 0, 0]}", datum)),
-                 "fiducials[0].pose.origin: unknown field (known here: probe_planes)");
-    expect_error(f.write("job.yaml", job_text("mm", "{orign: [0, 0, 0]}", datum)),
-                 "fiducials[0].pose.orign: unknown field (known here: origin, euler_xyz_deg, matrix, probe_planes)");
+    expect_error(
+        f.write("job.yaml", job_text("mm", "{probe_planes: [[], [], []], origin: [0, 0, 0]}", datum)),
+        "fiducials[0].pose.origin: unknown field (known here: probe_planes)");
+    expect_error(
+        f.write("job.yaml", job_text("mm", "{orign: [0, 0, 0]}", datum)),
+        "fiducials[0].pose.orign: unknown field (known here: origin, euler_xyz_deg, matrix, probe_planes)");
 
     // From the command line: exit 2, one line on stderr, nothing written.
     p = good;
     p[0].resize(1);
     const fs::path job = f.write("job.yaml", job_text("mm", yaml_planes(p), datum));
-    const std::string cmd = std::string(PARTLOC_EXE) + " run " + job.string() + " --out " + (f.dir / "out").string() +
-                            " 2> " + (f.dir / "stderr.txt").string() + " > /dev/null";
+    const std::string cmd = std::string(PARTLOC_EXE) + " run " + job.string() + " --out " +
+                            (f.dir / "out").string() + " 2> " + (f.dir / "stderr.txt").string() +
+                            " > /dev/null";
     const int status = std::system(cmd.c_str());
     EXPECT_EQ(WEXITSTATUS(status), 2);
     std::ifstream err(f.dir / "stderr.txt");
     std::string line, rest;
     std::getline(err, line);
-    EXPECT_NE(line.find("fiducials[0].pose.probe_planes[0]: needs at least 3 points, found 1"), std::string::npos) << line;
+    EXPECT_NE(line.find("fiducials[0].pose.probe_planes[0]: needs at least 3 points, found 1"),
+              std::string::npos)
+        << line;
     EXPECT_FALSE(std::getline(err, rest)) << rest;
     EXPECT_FALSE(fs::exists(f.dir / "out" / "result.json"));
 }

@@ -113,8 +113,8 @@ Hierarchy hierarchy(const Systems& sys, const std::array<int, 3>& dof) {
         const int m = static_cast<int>(F.cols());
         const int d = std::min(dof[k], m);
         h.U.push_back(F * es.eigenvectors().rightCols(d));
-        h.conditioning.push_back(sys[k].n ? std::max(0.0, es.eigenvalues()(m - d)) / static_cast<double>(sys[k].n)
-                                          : 0.0);
+        h.conditioning.push_back(
+            sys[k].n ? std::max(0.0, es.eigenvalues()(m - d)) / static_cast<double>(sys[k].n) : 0.0);
         F = Eigen::MatrixXd(F * es.eigenvectors().leftCols(m - d));
     }
     return h;
@@ -183,9 +183,11 @@ std::vector<DatumResidual> residuals(const Systems& sys, const std::vector<Datum
 
 std::vector<DatumResidual> evaluate_datums(const std::vector<Eigen::Vector3d>& merged,
                                            const std::vector<DatumSurface>& datums,
-                                           const Eigen::Isometry3d& T_correction, const DatumFitSettings& st) {
+                                           const Eigen::Isometry3d& T_correction,
+                                           const DatumFitSettings& st) {
     const Frame f = frame_of(datums);
-    return residuals(accumulate(merged, datums, T_correction.inverse(), last_distance(datums, st), false, f), datums);
+    return residuals(accumulate(merged, datums, T_correction.inverse(), last_distance(datums, st), false, f),
+                     datums);
 }
 
 DatumFit fit_datums(const std::vector<Eigen::Vector3d>& merged, const std::vector<DatumSurface>& datums,

@@ -30,7 +30,8 @@ struct DatumFitSettings {
     double noise = 0.0;    ///< scan noise, 1 sigma (job units)
     double spacing = 0.0;  ///< point spacing of the merged points (job units)
     /// Correspondence distance of the last stage (job units); 0: as the simultaneous fit's last stage,
-    /// sqrt(9 noise^2 + (sample spacing / 2)^2). Points within it of two datums (at a shared edge) are left out.
+    /// sqrt(9 noise^2 + (sample spacing / 2)^2). Points within it of two datums (at a shared edge) are left
+    /// out.
     double max_distance = 0.0;
     std::array<int, 3> dof = {3, 2, 1};  ///< degrees of freedom of the primary, secondary, tertiary
     int max_iterations = 40;             ///< per stage
@@ -75,6 +76,7 @@ DatumFit fit_datums(const std::vector<Eigen::Vector3d>& merged, const std::vecto
 /// Each datum's points and residual at a given pose (for a simultaneous fit); T_correction as above.
 std::vector<DatumResidual> evaluate_datums(const std::vector<Eigen::Vector3d>& merged,
                                            const std::vector<DatumSurface>& datums,
-                                           const Eigen::Isometry3d& T_correction, const DatumFitSettings& settings);
+                                           const Eigen::Isometry3d& T_correction,
+                                           const DatumFitSettings& settings);
 
 }  // namespace partloc

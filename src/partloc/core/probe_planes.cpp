@@ -21,7 +21,8 @@ double angle_deg(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
 }
 
 /// Least-squares plane through the points; the reason is set when there is none.
-PlaneFit fit_plane(const std::vector<Eigen::Vector3d>& pts, const ProbePlaneSettings& st, std::string& reason) {
+PlaneFit fit_plane(const std::vector<Eigen::Vector3d>& pts, const ProbePlaneSettings& st,
+                   std::string& reason) {
     PlaneFit f;
     f.points = pts.size();
     if (pts.size() < 3) {
@@ -35,7 +36,8 @@ PlaneFit fit_plane(const std::vector<Eigen::Vector3d>& pts, const ProbePlaneSett
     for (const auto& p : pts) C += (p - c) * (p - c).transpose();
     C /= static_cast<double>(pts.size());
     for (std::size_t i = 0; i < pts.size(); ++i)
-        for (std::size_t j = i + 1; j < pts.size(); ++j) f.extent = std::max(f.extent, (pts[i] - pts[j]).norm());
+        for (std::size_t j = i + 1; j < pts.size(); ++j)
+            f.extent = std::max(f.extent, (pts[i] - pts[j]).norm());
     const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(C);
     const Eigen::Vector3d lambda = es.eigenvalues().cwiseMax(0.0);  // ascending
     if (!(f.extent > 0)) {
@@ -56,9 +58,10 @@ PlaneFit fit_plane(const std::vector<Eigen::Vector3d>& pts, const ProbePlaneSett
     }
     f.rms = std::sqrt(sum2 / static_cast<double>(pts.size()));
     if (f.rms > st.max_rms_fraction * f.extent)
-        reason = fmt("the points are not on one plane: RMS residual %.4g is more than %.3g %% of their extent %.4g "
-                     "(a point on another face?)",
-                     f.rms, 100.0 * st.max_rms_fraction, f.extent);
+        reason = fmt(
+            "the points are not on one plane: RMS residual %.4g is more than %.3g %% of their extent %.4g "
+            "(a point on another face?)",
+            f.rms, 100.0 * st.max_rms_fraction, f.extent);
     return f;
 }
 
@@ -82,8 +85,9 @@ ProbedFrame frame_from_probe_planes(const std::array<std::vector<Eigen::Vector3d
             const Eigen::Vector3d& b = out.planes[j].normal;
             const double angle = angle_deg(a, b.dot(a) < 0 ? -b : b);
             if (angle < st.min_angle_deg) {
-                out.reason = fmt("planes %.0f and %.0f are near-parallel (%.3g degrees apart): they do not fix a corner",
-                                 i, j, angle);
+                out.reason = fmt(
+                    "planes %.0f and %.0f are near-parallel (%.3g degrees apart): they do not fix a corner",
+                    i, j, angle);
                 return out;
             }
         }
@@ -101,7 +105,8 @@ ProbedFrame frame_from_probe_planes(const std::array<std::vector<Eigen::Vector3d
             }
         }
         if (4 * std::min(above, below) > above + below || above + below == 0) {
-            out.reason = "the other planes' points lie on both sides of this plane: not the faces of one corner";
+            out.reason =
+                "the other planes' points lie on both sides of this plane: not the faces of one corner";
             out.plane = i;
             return out;
         }
@@ -114,19 +119,21 @@ ProbedFrame frame_from_probe_planes(const std::array<std::vector<Eigen::Vector3d
     for (int i = 0; i < 3; ++i) N.col(i) = out.planes[i].normal;
     if (N.determinant() <= 0) {
         out.reason =
-            "the planes, in this order, make a left-handed frame: list them in the order of the model's x = 0, "
+            "the planes, in this order, make a left-handed frame: list them in the order of the model's x = "
+            "0, "
             "y = 0, z = 0 faces";
         return out;
     }
     const Eigen::JacobiSVD<Eigen::Matrix3d> svd(N, Eigen::ComputeFullU | Eigen::ComputeFullV);
     const Eigen::Matrix3d R = svd.matrixU() * svd.matrixV().transpose();
     for (int i = 0; i < 3; ++i)
-        out.nonorthogonality_deg = std::max(
-            out.nonorthogonality_deg, angle_deg(R.col(i), out.planes[i].normal));
+        out.nonorthogonality_deg =
+            std::max(out.nonorthogonality_deg, angle_deg(R.col(i), out.planes[i].normal));
     if (out.nonorthogonality_deg > st.max_nonorthogonality_deg) {
-        out.reason = fmt("the planes are %.3g degrees from mutually perpendicular (at most %.3g allowed): not the "
-                         "three faces of a datum corner",
-                         out.nonorthogonality_deg, st.max_nonorthogonality_deg);
+        out.reason =
+            fmt("the planes are %.3g degrees from mutually perpendicular (at most %.3g allowed): not the "
+                "three faces of a datum corner",
+                out.nonorthogonality_deg, st.max_nonorthogonality_deg);
         return out;
     }
     // The corner: least squares over the three planes n_i . x = d_i (with three, their intersection).

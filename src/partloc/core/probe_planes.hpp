@@ -24,7 +24,7 @@ struct ProbePlaneSettings {
     double max_rms_fraction = 0.01;
     /// Points spread less than this fraction of their length across it are collinear: no plane.
     double min_width_fraction = 0.02;
-    double min_angle_deg = 30.0;          ///< two normals closer to parallel than this are rejected
+    double min_angle_deg = 30.0;             ///< two normals closer to parallel than this are rejected
     double max_nonorthogonality_deg = 10.0;  ///< a normal further than this from its orthonormal axis
 };
 

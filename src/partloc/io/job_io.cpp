@@ -166,7 +166,8 @@ class JobParser {
         }
         const ProbedFrame frame = frame_from_probe_planes(planes);
         if (!frame.ok) {
-            if (frame.plane >= 0) fail(lists[frame.plane], at + "[" + std::to_string(frame.plane) + "]", frame.reason);
+            if (frame.plane >= 0)
+                fail(lists[frame.plane], at + "[" + std::to_string(frame.plane) + "]", frame.reason);
             fail(lists, at, frame.reason);
         }
         probed_.push_back({path, frame});

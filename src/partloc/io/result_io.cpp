@@ -108,7 +108,8 @@ Json workpiece_json(const Job& job, const WorkpieceResult& w) {
     j["nominal"] = pose_json(nominal);
     j["fit"] = w.fit;
     Json datums = Json::array();
-    for (const auto& d : w.datums) datums.push_back({{"name", d.name}, {"points", d.points}, {"rmse", number(d.rmse)}});
+    for (const auto& d : w.datums)
+        datums.push_back({{"name", d.name}, {"points", d.points}, {"rmse", number(d.rmse)}});
     j["datums"] = datums;
     return j;
 }

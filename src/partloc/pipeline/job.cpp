@@ -44,7 +44,8 @@ ModelSource union_of_datums(const std::vector<Datum>& datums) {
         if (!part) continue;
         normals = normals && part->HasNormals();
         cloud->points_.insert(cloud->points_.end(), part->points_.begin(), part->points_.end());
-        if (normals) cloud->normals_.insert(cloud->normals_.end(), part->normals_.begin(), part->normals_.end());
+        if (normals)
+            cloud->normals_.insert(cloud->normals_.end(), part->normals_.begin(), part->normals_.end());
     }
     if (!normals) cloud->normals_.clear();
     u.points = cloud;

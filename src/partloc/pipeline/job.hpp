@@ -50,7 +50,7 @@ struct Datum {
 
 enum class WorkpieceFitMode {
     Simultaneous,  ///< one least-squares fit of all reference surfaces at once (paper §3.4.2)
-    Datums,        ///< 3-2-1: the primary datum fixes three degrees of freedom, the secondary two, the last one
+    Datums,        ///< 3-2-1: the primary fixes 3 degrees of freedom, the secondary 2, the tertiary 1
 };
 
 struct Workpiece {

@@ -40,7 +40,7 @@ struct WorkpieceResult {
     std::size_t inliers = 0;  ///< of those, the points on the reference surfaces
     Matrix6d information = Matrix6d::Zero();
     std::string fit = "simultaneous";   ///< "simultaneous" or "datums" (3-2-1), as job.workpiece.fit
-    std::vector<DatumResidual> datums;  ///< per datum, when the job names datums: points and rmse at the result
+    std::vector<DatumResidual> datums;  ///< per datum of the job, its points and rmse at the result
 };
 
 struct JobResult {
