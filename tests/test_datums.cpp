@@ -203,6 +203,50 @@ TEST(DatumFit, HonoursThePrimaryWhereTheSimultaneousFitSplitsTheDifference) {
     EXPECT_LT(at_sim[2].rmse, r[2].rmse);
 }
 
+TEST(DatumFit, CovarianceMatchesTheScatterOfRepeatedFits) {
+    // The covariance the datum fit reports (for the uncertainty) against repeated fits of the same corner
+    // with fresh noise: the squared Mahalanobis distance of the error is chi-squared with 6 degrees of
+    // freedom, mean 6; the mean of 30 has a standard deviation of 0.63.
+    const double spacing = 0.4, sigma = 0.05;
+    const Eigen::Isometry3d N = pose_from_origin_euler({-76.2, -12.7, 20.32}, {0, 0, 0});
+    const Eigen::Isometry3d T_true = pose_from_origin_euler({-75.4, -12.1, 20.0}, {0.8, 0.3, -0.5});
+    std::vector<DatumSurface> datums = {
+        {"A", grid_surface(N, {0, 0, 0}, {40, 0, 0}, {0, 30, 0}, 0.25)},
+        {"B", grid_surface(N, {0, 0, 0}, {0, 0, 15}, {40, 0, 0}, 0.25)},
+        {"C", grid_surface(N, {0, 0, 0}, {0, 30, 0}, {0, 0, 15}, 0.25)},
+    };
+    DatumFitSettings st;
+    st.noise = sigma;
+    st.spacing = spacing;
+    const Eigen::Isometry3d T_true_ts = N * T_true.inverse();  // merged points -> nominal, the fit's unknown
+    const int trials = 30;
+    double sum_d2 = 0, sum_t2 = 0, sum_pred_t2 = 0;
+    for (int trial = 0; trial < trials; ++trial) {
+        std::mt19937 rng(100 + trial);
+        const CastCorner cc = cast_corner(T_true, 0.0, spacing, sigma, rng);
+        // Start a little off the truth, as after the simultaneous fit.
+        const Eigen::Isometry3d start =
+            T_true * N.inverse() * pose_from_origin_euler({0.05, -0.03, 0.02}, {0.02, 0.01, -0.02});
+        const DatumFit f = fit_datums(cc.all, datums, start, st);
+        ASSERT_TRUE(f.ok) << f.reason;
+        const Eigen::Isometry3d X = f.T_correction.inverse() * T_true_ts.inverse();
+        const Eigen::AngleAxisd aa(X.linear());
+        Vector6d delta;
+        delta << aa.angle() * aa.axis(), X.translation();
+        const Matrix6d cov = sigma * sigma * f.covariance;
+        sum_d2 += delta.dot(cov.ldlt().solve(delta));
+        sum_t2 += X.translation().squaredNorm();
+        sum_pred_t2 += cov.bottomRightCorner<3, 3>().trace();
+    }
+    const double mean_d2 = sum_d2 / trials;
+    std::printf(
+        "datum fit over %d noisy corners: mean squared Mahalanobis error %.2f (6 if the covariance is "
+        "honest); rms twist translation %.5f mm, predicted %.5f mm\n",
+        trials, mean_d2, std::sqrt(sum_t2 / trials), std::sqrt(sum_pred_t2 / trials));
+    EXPECT_GT(mean_d2, 4.0);
+    EXPECT_LT(mean_d2, 8.5);
+}
+
 TEST(DatumFit, TooFewPointsOrNoDatumsIsAReason) {
     const Eigen::Isometry3d N = Eigen::Isometry3d::Identity();
     std::vector<DatumSurface> datums = {

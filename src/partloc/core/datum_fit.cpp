@@ -13,7 +13,8 @@ namespace {
 
 /// Gauss-Newton sums of one datum, in scaled twist coordinates [L w, v] about the centre c.
 struct System {
-    Matrix6d H = Matrix6d::Zero();
+    Matrix6d H = Matrix6d::Zero();   ///< sum w J J^T
+    Matrix6d H2 = Matrix6d::Zero();  ///< sum w^2 J J^T: for unit noise, the covariance of g
     Vector6d g = Vector6d::Zero();
     double r2 = 0.0;
     std::size_t n = 0;
@@ -25,6 +26,7 @@ Systems add(const Systems& a, const Systems& b) {
     Systems s = a;
     for (std::size_t k = 0; k < s.size(); ++k) {
         s[k].H += b[k].H;
+        s[k].H2 += b[k].H2;
         s[k].g += b[k].g;
         s[k].r2 += b[k].r2;
         s[k].n += b[k].n;
@@ -88,6 +90,7 @@ Systems accumulate(const std::vector<Eigen::Vector3d>& pts, const std::vector<Da
                 J << (q - f.c).cross(m.n) / f.L, m.n;
                 System& s = acc[static_cast<std::size_t>(m.datum)];
                 s.H.noalias() += w * J * J.transpose();
+                s.H2.noalias() += w * w * J * J.transpose();
                 s.g.noalias() -= w * m.r * J;
                 s.r2 += m.r * m.r;
                 ++s.n;
@@ -255,8 +258,8 @@ DatumFit fit_datums(const std::vector<Eigen::Vector3d>& merged, const std::vecto
         fit.converged = fit.converged && converged;
     }
 
-    // The result at the last stage's distance, unweighted: residuals, and the covariance of the estimate.
-    const Systems sys = accumulate(near, datums, T, fine, false, f);
+    // The result at the last stage's distance: residuals (unweighted), and the covariance of the estimate.
+    const Systems sys = accumulate(near, datums, T, fine, true, f);
     fit.T_correction = T.inverse();
     fit.datums = residuals(sys, datums);
     h = hierarchy(sys, st.dof);
@@ -269,8 +272,9 @@ DatumFit fit_datums(const std::vector<Eigen::Vector3d>& merged, const std::vecto
     }
     fit.rmse = fit.inliers ? std::sqrt(r2 / fit.inliers) : 0.0;
 
-    // The step is linear in the datums' gradients: delta = sum_k M_k g_k, and for unit noise Cov(g_k) = H_k,
-    // so Cov(delta) = sum_k M_k H_k M_k^T (the datums' points are disjoint, hence independent).
+    // The step is linear in the datums' gradients: delta = sum_k M_k g_k, and for unit noise
+    // Cov(g_k) = sum w^2 J J^T (Tukey weights w), so Cov(delta) = sum_k M_k H2_k M_k^T (the datums' points
+    // are disjoint, hence independent): the sandwich covariance of an M-estimator.
     Matrix6d cov_scaled = Matrix6d::Zero();
     for (std::size_t k = 0; k < datums.size(); ++k) {
         Matrix6d M;
@@ -279,7 +283,7 @@ DatumFit fit_datums(const std::vector<Eigen::Vector3d>& merged, const std::vecto
             g[k](i) = 1.0;
             M.col(i) = solve(sys, g, h);
         }
-        cov_scaled += M * sys[k].H * M.transpose();
+        cov_scaled += M * sys[k].H2 * M.transpose();
     }
     // [L w, v] about c  ->  [w, v0] about the origin: v0 = v - w x c = v + c x w.
     Matrix6d A = Matrix6d::Zero();
