@@ -103,7 +103,7 @@ int main(int argc, char** argv) {
         std::mt19937_64 rng(seed * 7919 + 17);
         std::normal_distribution<double> g(0.0, 1.0);
         for (auto& f : sj.job.fiducials) {
-            const double sigma = f.pose_sigma > 0 ? f.pose_sigma : 0.005;
+            const double sigma = f.pose_sigma;
             const auto box = f.model.mesh->GetAxisAlignedBoundingBox();
             const double half = 0.5 * (box.max_bound_ - box.min_bound_).norm();
             Vector6d xi;

@@ -6,6 +6,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <exception>
 #include <functional>
@@ -146,7 +147,35 @@ class JobParser {
         return ref;
     }
 
-    Eigen::Isometry3d pose(const YAML::Node& n, const std::string& path) const {
+    /// A pose given as probed points on three planes (core/probe_planes.hpp); recorded for the report.
+    Eigen::Isometry3d probed_pose(const YAML::Node& n, const std::string& path) {
+        check_map(n, path, {"probe_planes"});
+        const YAML::Node lists = n["probe_planes"];
+        const std::string at = join(path, "probe_planes");
+        if (!lists.IsSequence() || lists.size() != 3)
+            fail(lists, at,
+                 "expected 3 lists of probed points (the planes x = 0, y = 0, z = 0 of the frame), found " +
+                     (lists.IsSequence() ? std::to_string(lists.size()) + " items" : describe(lists)));
+        std::array<std::vector<Eigen::Vector3d>, 3> planes;
+        for (std::size_t i = 0; i < 3; ++i) {
+            const std::string list = at + "[" + std::to_string(i) + "]";
+            if (!lists[i].IsSequence())
+                fail(lists[i], list, "expected a list of [x, y, z] points, found " + describe(lists[i]));
+            for (std::size_t k = 0; k < lists[i].size(); ++k)
+                planes[i].push_back(vector3(lists[i][k], list + "[" + std::to_string(k) + "]"));
+        }
+        const ProbedFrame frame = frame_from_probe_planes(planes);
+        if (!frame.ok) {
+            if (frame.plane >= 0)
+                fail(lists[frame.plane], at + "[" + std::to_string(frame.plane) + "]", frame.reason);
+            fail(lists, at, frame.reason);
+        }
+        probed_.push_back({path, frame});
+        return frame.T;
+    }
+
+    Eigen::Isometry3d pose(const YAML::Node& n, const std::string& path) {
+        if (n.IsMap() && n["probe_planes"].IsDefined()) return probed_pose(n, path);
         if (n.IsMap() && n["matrix"].IsDefined()) {
             check_map(n, path, {"matrix"});
             const YAML::Node m = n["matrix"];
@@ -171,7 +200,7 @@ class JobParser {
                 fail(m, at, what.substr(std::min(what.size(), at.size() + 2)));
             }
         }
-        check_map(n, path, {"origin", "euler_xyz_deg"});
+        check_map(n, path, {"origin", "euler_xyz_deg", "matrix", "probe_planes"});
         const Eigen::Vector3d origin = vector3(required(n, path, "origin"), join(path, "origin"));
         const Eigen::Vector3d euler = n["euler_xyz_deg"].IsDefined()
                                           ? vector3(n["euler_xyz_deg"], join(path, "euler_xyz_deg"))
@@ -252,6 +281,7 @@ class JobParser {
     std::string job_name_;
     double job_mm_per_unit_ = 1.0;
     Machine machine_;
+    std::vector<ProbedPose> probed_;
 };
 
 void JobParser::parse(const YAML::Node& root, Job& job, std::vector<FileTask>& tasks) {
@@ -298,20 +328,60 @@ void JobParser::parse(const YAML::Node& root, Job& job, std::vector<FileTask>& t
         fid.T_machine_fiducial = pose(required(f, at, "pose"), at + ".pose");
         fid.probed_at = axis_values(f["probed_at"], at + ".probed_at");
         fid.moves_with = axis_chain(f["moves_with"], at + ".moves_with");
-        if (f["pose_sigma"].IsDefined())
-            fid.pose_sigma = number_at_least(f["pose_sigma"], at + ".pose_sigma", 0, false);
+        // An explicit default, in the job's units, so that what reads the job reads a real number.
+        fid.pose_sigma = f["pose_sigma"].IsDefined()
+                             ? number_at_least(f["pose_sigma"], at + ".pose_sigma", 0, false)
+                             : 0.005 / job_mm_per_unit_;
         tasks.push_back({model, [&fid](const fs::path& p, const FileRef& r) {
                              fid.model = read_model(p, r.file, r.scale);
                          }});
     }
 
     const YAML::Node w = required(root, "", "workpiece");
-    check_map(w, "workpiece", {"reference_surfaces", "datum", "final_part", "moves_with", "region"});
-    const FileRef reference =
-        file_ref(required(w, "workpiece", "reference_surfaces"), "workpiece.reference_surfaces");
-    tasks.push_back({reference, [&job](const fs::path& p, const FileRef& r) {
-                         job.workpiece.reference_surfaces = read_model(p, r.file, r.scale);
-                     }});
+    check_map(w, "workpiece",
+              {"reference_surfaces", "datum", "final_part", "moves_with", "region", "datums", "fit"});
+    if (const YAML::Node d = w["datums"]; d.IsDefined() && !d.IsNull()) {
+        if (!d.IsSequence() || d.size() != 3)
+            fail(d, "workpiece.datums",
+                 "expected 3 datums (primary, secondary, tertiary), found " +
+                     (d.IsSequence() ? std::to_string(d.size()) + " items" : describe(d)));
+        job.workpiece.datums.resize(d.size());
+        for (std::size_t i = 0; i < d.size(); ++i) {
+            const std::string at = "workpiece.datums[" + std::to_string(i) + "]";
+            check_map(d[i], at, {"name", "surfaces"});
+            Datum& datum = job.workpiece.datums[i];
+            datum.name = text(required(d[i], at, "name"), at + ".name");
+            for (std::size_t j = 0; j < i; ++j)
+                if (job.workpiece.datums[j].name == datum.name)
+                    fail(d[i]["name"], at + ".name",
+                         "datum name '" + datum.name + "' is already used by workpiece.datums[" +
+                             std::to_string(j) + "]");
+            const FileRef surfaces = file_ref(required(d[i], at, "surfaces"), at + ".surfaces");
+            tasks.push_back({surfaces, [&datum](const fs::path& p, const FileRef& r) {
+                                 datum.surfaces = read_model(p, r.file, r.scale);
+                             }});
+        }
+    }
+    const bool has_datums = !job.workpiece.datums.empty();
+    job.workpiece.fit = has_datums ? WorkpieceFitMode::Datums : WorkpieceFitMode::Simultaneous;
+    if (const YAML::Node f = w["fit"]; f.IsDefined()) {
+        const std::string mode = text(f, "workpiece.fit");
+        if (mode == "simultaneous")
+            job.workpiece.fit = WorkpieceFitMode::Simultaneous;
+        else if (mode == "datums")
+            job.workpiece.fit = WorkpieceFitMode::Datums;
+        else
+            fail(f, "workpiece.fit", "expected simultaneous or datums, found '" + mode + "'");
+        if (mode == "datums" && !has_datums) fail(f, "workpiece.fit", "datums needs workpiece.datums");
+    }
+    // With datums, the reference surfaces may be left out: they are then the datums' union (load_job).
+    if (!has_datums || (w["reference_surfaces"].IsDefined() && !w["reference_surfaces"].IsNull())) {
+        const FileRef reference =
+            file_ref(required(w, "workpiece", "reference_surfaces"), "workpiece.reference_surfaces");
+        tasks.push_back({reference, [&job](const fs::path& p, const FileRef& r) {
+                             job.workpiece.reference_surfaces = read_model(p, r.file, r.scale);
+                         }});
+    }
     if (w["datum"].IsDefined()) job.workpiece.T_machine_workpiece = pose(w["datum"], "workpiece.datum");
     if (w["final_part"].IsDefined() && !w["final_part"].IsNull()) {
         const FileRef part = file_ref(w["final_part"], "workpiece.final_part");
@@ -352,6 +422,7 @@ void JobParser::parse(const YAML::Node& root, Job& job, std::vector<FileTask>& t
                              scan.points = read_point_cloud(p, r.file, r.scale);
                          }});
     }
+    job.probed_poses = probed_;
 }
 
 std::string read_job_text(const fs::path& job_file, const std::string& name) {
@@ -409,6 +480,9 @@ Job load_job(const fs::path& job_file, const LoadOptions& options) {
     arena.execute([&] { tbb::parallel_for(std::size_t(0), tasks.size(), run); });
     for (const auto& e : errors)
         if (e) std::rethrow_exception(e);
+    Workpiece& w = job.workpiece;
+    if (!w.reference_surfaces.mesh && !w.reference_surfaces.points && !w.datums.empty())
+        w.reference_surfaces = union_of_datums(w.datums);
     return job;
 }
 

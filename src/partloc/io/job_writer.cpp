@@ -107,6 +107,7 @@ void write_job(const fs::path& dir, const Job& job) {
     for (const auto& f : job.fiducials) write_model(dir, f.model, "fiducial " + f.name);
     write_model(dir, job.workpiece.reference_surfaces, "workpiece reference_surfaces");
     if (job.workpiece.final_part) write_model(dir, *job.workpiece.final_part, "workpiece final_part");
+    for (const auto& d : job.workpiece.datums) write_model(dir, d.surfaces, "workpiece datum " + d.name);
     for (const auto& s : job.scans) {
         if (!s.points) throw std::invalid_argument("scan '" + s.file + "': has no points to write");
         write_point_cloud(target(dir, s.file, "scan"), *s.points, "scan frame, units " + job.units);
@@ -172,6 +173,15 @@ void write_job(const fs::path& dir, const Job& job) {
         out << YAML::Key << "max" << YAML::Value;
         emit_vector(out, w.region->max());
         out << YAML::EndMap;
+    }
+    if (!w.datums.empty()) {
+        out << YAML::Key << "datums" << YAML::Value << YAML::BeginSeq;
+        for (const auto& d : w.datums)
+            out << YAML::Flow << YAML::BeginMap << YAML::Key << "name" << YAML::Value << d.name << YAML::Key
+                << "surfaces" << YAML::Value << d.surfaces.file << YAML::EndMap;
+        out << YAML::EndSeq;
+        out << YAML::Key << "fit" << YAML::Value
+            << (w.fit == WorkpieceFitMode::Datums ? "datums" : "simultaneous");
     }
     out << YAML::EndMap;
 

@@ -8,8 +8,8 @@
 
 namespace partloc::io {
 
-/// Writes dir/job.yaml and, under dir, each fiducial model, the workpiece's reference surfaces and final
-/// part (a mesh as STL, PLY or OBJ by its file's extension; points as binary PLY) and each scan (binary
+/// Writes dir/job.yaml and, under dir, each fiducial model, the workpiece's reference surfaces, final
+/// part and datums' surfaces (a mesh as STL, PLY or OBJ by its file's extension; points as binary PLY) and each scan (binary
 /// PLY, float x y z, scan frame), through the writers of cloud_io.hpp. Lengths are written in job.units
 /// as they are. Throws std::invalid_argument for a model or scan without data or without a relative file
 /// name inside dir, and std::runtime_error naming the file when one cannot be written.

@@ -118,7 +118,28 @@ Json workpiece_json(const Job& job, const WorkpieceResult& w) {
     } else {
         j["uncertainty_95"] = nullptr;  // fewer than three registered scans: no honest estimate
     }
+    j["fit"] = w.fit;
+    Json datums = Json::array();
+    for (const auto& d : w.datums)
+        datums.push_back({{"name", d.name}, {"points", d.points}, {"rmse", number(d.rmse)}});
+    j["datums"] = datums;
     return j;
+}
+
+/// Poses the job gave as probed points, with each plane's fit (what the probing says of itself).
+Json probed_json(const Job& job) {
+    Json all = Json::array();
+    for (const auto& p : job.probed_poses) {
+        Json planes = Json::array();
+        for (const auto& f : p.frame.planes)
+            planes.push_back({{"points", f.points}, {"rms", number(f.rms)}, {"max", number(f.max)}});
+        all.push_back({{"field", p.field},
+                       {"origin", vector3(p.frame.T.translation())},
+                       {"euler_xyz_deg", vector3(euler_xyz_deg(p.frame.T.linear()))},
+                       {"planes", planes},
+                       {"nonorthogonality_deg", number(p.frame.nonorthogonality_deg)}});
+    }
+    return all;
 }
 
 /// JSON text with every array of plain numbers on one line, so a 4x4 matrix reads as four rows.
@@ -176,6 +197,7 @@ std::string result_json(const Job& job, const JobResult& result) {
         scans.push_back(scan_json(result.scans[i], i < job.scans.size() ? &job.scans[i] : nullptr));
     j["scans"] = scans;
     j["workpiece"] = workpiece_json(job, result.workpiece);
+    j["probed_poses"] = probed_json(job);
     j["seconds"] = number(result.seconds);
     return compact_number_arrays(j.dump(2)) + "\n";
 }

@@ -2,6 +2,8 @@
 
 #include <stdexcept>
 
+#include "partloc/core/surface.hpp"
+
 namespace partloc {
 
 double millimetres_per_unit(const std::string& units) {
@@ -11,6 +13,43 @@ double millimetres_per_unit(const std::string& units) {
     if (units == "cm") return 10.0;
     if (units == "um") return 0.001;
     throw std::invalid_argument("unknown unit '" + units + "' (known: mm, m, in, cm, um)");
+}
+
+double default_pose_sigma(const std::string& units) { return 0.005 / millimetres_per_unit(units); }
+
+ModelSource union_of_datums(const std::vector<Datum>& datums) {
+    ModelSource u;
+    if (datums.empty()) return u;
+    u.file = "datums";
+    bool all_meshes = true;
+    Eigen::AlignedBox3d box;
+    for (const auto& d : datums) {
+        all_meshes = all_meshes && d.surfaces.mesh;
+        if (d.surfaces.mesh)
+            for (const auto& v : d.surfaces.mesh->vertices_) box.extend(v);
+        if (d.surfaces.points)
+            for (const auto& v : d.surfaces.points->points_) box.extend(v);
+    }
+    if (all_meshes) {
+        auto mesh = std::make_shared<open3d::geometry::TriangleMesh>();
+        for (const auto& d : datums) *mesh += *d.surfaces.mesh;
+        u.mesh = mesh;
+        return u;
+    }
+    auto cloud = std::make_shared<open3d::geometry::PointCloud>();
+    bool normals = true;
+    const double spacing = std::max(box.diagonal().norm() / 400.0, 1e-12);
+    for (const auto& d : datums) {
+        const auto part = d.surfaces.mesh ? sample_mesh(*d.surfaces.mesh, spacing) : d.surfaces.points;
+        if (!part) continue;
+        normals = normals && part->HasNormals();
+        cloud->points_.insert(cloud->points_.end(), part->points_.begin(), part->points_.end());
+        if (normals)
+            cloud->normals_.insert(cloud->normals_.end(), part->normals_.begin(), part->normals_.end());
+    }
+    if (!normals) cloud->normals_.clear();
+    u.points = cloud;
+    return u;
 }
 
 }  // namespace partloc

@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "partloc/core/kinematics.hpp"
+#include "partloc/core/probe_planes.hpp"
 
 namespace partloc {
 
@@ -32,7 +33,24 @@ struct Fiducial {
     Eigen::Isometry3d T_machine_fiducial = Eigen::Isometry3d::Identity();  ///< as probed at probed_at
     AxisValues probed_at;                                        ///< axis values when probed (default all 0)
     std::vector<std::string> moves_with;                         ///< axes that carry it, base first
-    double pose_sigma = 0.0;  ///< 1-sigma probing uncertainty (job units); 0: the default 0.005 mm
+    /// 1-sigma probing uncertainty of the pose (job units). load_job always sets it: as given, or
+    /// default_pose_sigma(units). The initial value is that default for a job in mm (Job's default units);
+    /// an in-memory job in other units must set it. 0 means the probed pose is taken as exact.
+    double pose_sigma = 0.005;
+};
+
+/// 0.005 mm, the default probing uncertainty of a fiducial's pose, in `units`.
+double default_pose_sigma(const std::string& units);
+
+/// A datum feature of the workpiece (paper §4: primary, secondary, tertiary datum).
+struct Datum {
+    std::string name;
+    ModelSource surfaces;  ///< nominal position, machine frame, axes at 0
+};
+
+enum class WorkpieceFitMode {
+    Simultaneous,  ///< one least-squares fit of all reference surfaces at once (paper §3.4.2)
+    Datums,        ///< 3-2-1: the primary fixes 3 degrees of freedom, the secondary 2, the tertiary 1
 };
 
 struct Workpiece {
@@ -41,6 +59,14 @@ struct Workpiece {
     std::optional<ModelSource> final_part;  ///< the part to be cut, at its nominal position
     std::vector<std::string> moves_with;
     std::optional<Eigen::AlignedBox3d> region;  ///< crop box, machine frame, axes at 0
+    std::vector<Datum> datums;  ///< empty, or three: primary, secondary, tertiary
+    WorkpieceFitMode fit = WorkpieceFitMode::Simultaneous;
+};
+
+/// A pose the job gave as probed points on three planes, with the fit's residuals, for the report.
+struct ProbedPose {
+    std::string field;  ///< where in the job, e.g. "fiducials[0].pose"
+    ProbedFrame frame;
 };
 
 struct Scan {
@@ -56,9 +82,15 @@ struct Job {
     std::vector<Fiducial> fiducials;
     Workpiece workpiece;
     std::vector<Scan> scans;
+    std::vector<ProbedPose> probed_poses;  ///< every pose given as probe_planes, in the job's order
 };
 
 /// Factor that converts a length in `units` to millimetres; throws std::invalid_argument on an unknown unit.
 double millimetres_per_unit(const std::string& units);
+
+/// The union of the datums' surfaces as one model (the reference surfaces of a job that names only datums):
+/// one mesh when every datum is a mesh, else points (meshes sampled at 1/400 of their union's diagonal;
+/// normals kept only when every part has them). Its file is "datums". Empty when there are no datums.
+ModelSource union_of_datums(const std::vector<Datum>& datums);
 
 }  // namespace partloc

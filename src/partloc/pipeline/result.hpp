@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "partloc/core/datum_fit.hpp"
 #include "partloc/core/geometry.hpp"
 #include "partloc/core/localize.hpp"
 
@@ -54,6 +55,8 @@ struct WorkpieceResult {
     std::size_t inliers = 0;  ///< of those, the points on the reference surfaces
     Matrix6d information = Matrix6d::Zero();
     Uncertainty uncertainty;
+    std::string fit = "simultaneous";   ///< "simultaneous" or "datums" (3-2-1), as job.workpiece.fit
+    std::vector<DatumResidual> datums;  ///< per datum of the job, its points and rmse at the result
 };
 
 struct JobResult {

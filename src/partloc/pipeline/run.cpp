@@ -397,6 +397,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     }
     WorkpieceResult& w = result.workpiece;
     w.T_machine_workpiece_nominal = job.workpiece.T_machine_workpiece;
+    w.fit = job.workpiece.fit == WorkpieceFitMode::Datums ? "datums" : "simultaneous";
     if (registered == 0) {
         w.message = "no scan could be registered to the machine";
         result.seconds = seconds_since(t0);
@@ -413,16 +414,19 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     const auto& ref = job.workpiece.reference_surfaces;
     const double ref_d = model_box(ref).diagonal().norm();
     const double ref_spacing = std::max(spacing, ref_d / 400.0);
-    std::shared_ptr<open3d::geometry::PointCloud> ref_samples;
-    if (ref.mesh && !ref.mesh->triangles_.empty()) {
-        ref_samples = sample_mesh(*ref.mesh, ref_spacing);
-    } else if (ref.points && !ref.points->points_.empty()) {
-        ref_samples = std::make_shared<open3d::geometry::PointCloud>(*ref.points);
-        if (!ref_samples->HasNormals()) {
-            ref_samples->EstimateNormals(open3d::geometry::KDTreeSearchParamKNN(20));
-            ref_samples->OrientNormalsConsistentTangentPlane(12);
+    // Oriented samples of a nominal model (reference surfaces or a datum); null when it is empty.
+    const auto oriented_samples = [&](const ModelSource& m) -> std::shared_ptr<open3d::geometry::PointCloud> {
+        if (m.mesh && !m.mesh->triangles_.empty()) return sample_mesh(*m.mesh, ref_spacing);
+        if (!m.points || m.points->points_.empty()) return nullptr;
+        auto samples = std::make_shared<open3d::geometry::PointCloud>(*m.points);
+        if (!samples->HasNormals()) {
+            samples->EstimateNormals(open3d::geometry::KDTreeSearchParamKNN(20));
+            samples->OrientNormalsConsistentTangentPlane(12);
         }
-    } else {
+        return samples;
+    };
+    const auto ref_samples = oriented_samples(ref);
+    if (!ref_samples) {
         w.message = "the reference surfaces are empty";
         result.seconds = seconds_since(t0);
         return result;
@@ -445,8 +449,43 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         result.seconds = seconds_since(t0);
         return result;
     }
+    // The datum hierarchy (3-2-1), from the simultaneous fit's pose; or, for a simultaneous fit, each
+    // datum's residual there.
+    Eigen::Isometry3d T_correction = fit.T_correction;
+    std::vector<DatumSurface> datum_surfaces;
+    DatumFitSettings datum_settings;
+    if (!job.workpiece.datums.empty()) {
+        std::vector<DatumSurface>& datums = datum_surfaces;
+        for (const auto& d : job.workpiece.datums) {
+            const auto samples = oriented_samples(d.surfaces);
+            if (!samples) {
+                w.message = "datum " + d.name + ": its surfaces are empty";
+                result.seconds = seconds_since(t0);
+                return result;
+            }
+            datums.push_back({d.name, make_surface(samples, ref_spacing)});
+        }
+        DatumFitSettings& ds = datum_settings;
+        ds.noise = wfs.noise;
+        ds.spacing = spacing;
+        if (job.workpiece.fit == WorkpieceFitMode::Datums) {
+            const DatumFit df = fit_datums(merged->points_, datums, fit.T_correction, ds);
+            w.datums = df.datums;
+            if (!df.ok) {
+                w.message = df.reason;
+                result.seconds = seconds_since(t0);
+                return result;
+            }
+            T_correction = df.T_correction;
+            w.rmse = df.rmse;
+            w.inliers = df.inliers;
+            w.information = df.information / std::max(wfs.noise * wfs.noise, 1e-30);
+        } else {
+            w.datums = evaluate_datums(merged->points_, datums, fit.T_correction, ds);
+        }
+    }
     w.located = true;
-    w.T_machine_workpiece = fit.T_correction * job.workpiece.T_machine_workpiece;
+    w.T_machine_workpiece = T_correction * job.workpiece.T_machine_workpiece;
     result.located = true;
     {
         UncertaintyInputs ui;
@@ -460,16 +499,23 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
             ui.scan_fiducials.push_back(used);
         }
         ui.reference = &reference;
-        ui.T_correction = fit.T_correction;
+        ui.T_correction = T_correction;
         ui.fit_distance = fit.distance;
         ui.noise = wfs.noise;
-        ui.JtJ = fit.JtJ;
+        ui.information = w.information;
+        if (job.workpiece.fit == WorkpieceFitMode::Datums)
+            ui.refit = [&](const std::vector<Eigen::Vector3d>& pts, const std::vector<Eigen::Vector3d>*)
+                -> std::optional<Eigen::Isometry3d> {
+                const DatumFit df = fit_datums(pts, datum_surfaces, T_correction, datum_settings);
+                if (!df.ok) return std::nullopt;
+                return df.T_correction;
+            };
         estimate_uncertainty(job, ui, w);
     }
 
     if (job.workpiece.final_part && job.workpiece.final_part->mesh) {
         auto located = std::make_shared<open3d::geometry::TriangleMesh>(*job.workpiece.final_part->mesh);
-        located->Transform(fit.T_correction.matrix());
+        located->Transform(T_correction.matrix());
         result.final_part_located = located;
     }
     if (settings.build_stock) {

@@ -74,6 +74,11 @@ void estimate_uncertainty(const Job& job, const UncertaintyInputs& in, Workpiece
             q.insert(q.end(), nrm[j].begin(), nrm[j].end());
             normals = normals && nrm[j].size() == pts[j].size();
         }
+        if (in.refit) {
+            const auto T = in.refit(p, normals ? &q : nullptr);
+            if (T) loo.push_back(pose6(*T * w.T_machine_workpiece_nominal));
+            continue;
+        }
         const IcpResult r = icp_point_to_plane(p, *in.reference, in.T_correction.inverse(), is, normals ? &q : nullptr);
         if (r.inliers < 100) continue;
         loo.push_back(pose6(r.T_target_source.inverse() * w.T_machine_workpiece_nominal));
@@ -98,7 +103,6 @@ void estimate_uncertainty(const Job& job, const UncertaintyInputs& in, Workpiece
 
     // The probing: each fiducial's share of the registrations; an error in its pose moves the workpiece by
     // the translation plus the rotation times the lever arm from the fiducial to the workpiece's origin.
-    const double mm = millimetres_per_unit(job.units);
     Eigen::Vector3d po = Eigen::Vector3d::Zero(), pe = Eigen::Vector3d::Zero();
     for (std::size_t f = 0; f < job.fiducials.size(); ++f) {
         double share = 0.0;
@@ -107,7 +111,7 @@ void estimate_uncertainty(const Job& job, const UncertaintyInputs& in, Workpiece
         share /= n;
         if (share <= 0) continue;
         const auto& fid = job.fiducials[f];
-        const double sigma = fid.pose_sigma > 0 ? fid.pose_sigma : 0.005 / mm;
+        const double sigma = fid.pose_sigma;  // the loader sets the default, 0.005 mm; 0 means exact
         const auto box = model_box(fid.model);
         const double half = std::max(0.5 * box.diagonal().norm(), 1e-9);
         const double sr = sigma / half;  // radians
@@ -122,7 +126,7 @@ void estimate_uncertainty(const Job& job, const UncertaintyInputs& in, Workpiece
     u.euler_probing = pe.cwiseSqrt() * 180.0 / M_PI;
 
     // The noise: the fit's information matrix.
-    const Matrix6d info = in.JtJ / std::max(in.noise * in.noise, 1e-30);
+    const Matrix6d& info = in.information;
     Eigen::SelfAdjointEigenSolver<Matrix6d> es(info);
     if (es.eigenvalues()(0) > 0) {
         const Matrix6d cov = es.eigenvectors() * es.eigenvalues().cwiseInverse().asDiagonal() * es.eigenvectors().transpose();

@@ -9,7 +9,9 @@
 //    it registers the same way, so it does not average out over scans;
 //  - the noise of the points, from the fit's information matrix (a floor, small in practice).
 #include <Eigen/Geometry>
+#include <functional>
 #include <memory>
+#include <optional>
 #include <vector>
 
 #include <open3d/geometry/PointCloud.h>
@@ -30,7 +32,12 @@ struct UncertaintyInputs {
     Eigen::Isometry3d T_correction = Eigen::Isometry3d::Identity();  ///< the fit: located = T_correction * nominal
     double fit_distance = 0.0;   ///< the fit's last correspondence distance
     double noise = 0.0;          ///< scan noise, 1 sigma
-    Matrix6d JtJ = Matrix6d::Zero();  ///< the fit's, machine frame, twist [w, v]
+    Matrix6d information = Matrix6d::Zero();  ///< the fit's, machine frame, twist [w, v] (JtJ / noise^2)
+    /// The part's fit again on other points (machine frame, normals or null), from the full fit's pose:
+    /// the T_correction it finds. Empty: point-to-plane on `reference` from T_correction.
+    std::function<std::optional<Eigen::Isometry3d>(const std::vector<Eigen::Vector3d>&,
+                                                   const std::vector<Eigen::Vector3d>*)>
+        refit;
 };
 
 /// Fills result.workpiece.uncertainty (needs result.workpiece.T_machine_workpiece located).
