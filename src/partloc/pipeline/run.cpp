@@ -380,9 +380,15 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
             const Eigen::Vector3d p = T_machine0_scan * q;
             if (region.contains(p)) wp->points_.push_back(p);
         }
-        // Normals for the stock model, facing this scan's scanner.
-        wp->EstimateNormals(open3d::geometry::KDTreeSearchParamHybrid(3.5 * work[i].scale.spacing, 30));
-        wp->OrientNormalsTowardsCameraLocation(T_machine0_scan * ps.viewpoint);
+        // Normals for the stock model, facing this scan's scanner. (Open3D throws on an empty cloud, from
+        // inside an OpenMP region, which ends the process: a scan that sees a fiducial and not the part.)
+        if (wp->points_.size() >= 10) {
+            wp->EstimateNormals(open3d::geometry::KDTreeSearchParamHybrid(3.5 * work[i].scale.spacing, 30));
+            wp->OrientNormalsTowardsCameraLocation(T_machine0_scan * ps.viewpoint);
+        } else {
+            wp->points_.clear();
+            r.warnings.push_back("registered, but it shows nothing of the workpiece in its region");
+        }
         work[i].workpiece_points = wp;
         r.seconds = seconds_since(ts);
     });
