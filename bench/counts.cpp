@@ -1,9 +1,7 @@
 // Counts, over many generated cells, how scans end: registered right, registered wrong, rejected while a
 // fiducial was in view, rejected with none in view. And the located workpiece's error against truth.
-//   build/bench/partloc_bench [first_seed] [cells]
+//   build/bench/partloc_bench counts [first_seed] [cells]
 // Results go to BENCHMARK.md with the command that produced them.
-#include <open3d/utility/Logging.h>
-
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -12,10 +10,9 @@
 #include "partloc/pipeline/run.hpp"
 #include "partloc/sim/scenario.hpp"
 
-using namespace partloc;
+namespace partloc::bench {
 
-int main(int argc, char** argv) {
-    open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
+int counts_main(int argc, char** argv) {
     const std::uint64_t first = argc > 1 ? std::strtoull(argv[1], nullptr, 10) : 100;
     const int cells = argc > 2 ? std::atoi(argv[2]) : 10;
     constexpr std::size_t kSeen = 4000;  // a fiducial with this many true returns is "in view"
@@ -75,3 +72,5 @@ int main(int argc, char** argv) {
                 located, cells, located ? sum_origin / located : 0.0, worst_origin, worst_rotation, seconds / cells);
     return 0;
 }
+
+}  // namespace partloc::bench
