@@ -7,6 +7,7 @@
 //                         [--positions P] [--per-position K] [--stock] [--header]
 //       one method on one generated cell, in this process: one table row (scans right / wrong / rejected,
 //       workpiece origin and rotation error, wall time and peak memory of the method alone).
+//   partloc_bench header         the column names of the rows.
 //   partloc_bench scaling ...    the same as compare --method partloc (a name for the scaling runs).
 //
 // Exit codes: 0 a row was printed (whatever the method found), 2 bad arguments, 4 the generator could not
@@ -54,6 +55,12 @@ MethodOutcome run_partloc(const Job& job, std::uint64_t seed, bool stock) {
     return out;
 }
 
+void print_header() {
+    std::printf("%-8s %5s %5s %9s %5s %5s %8s %7s %9s %8s %8s %8s %8s %7s\n", "method", "seed", "scans", "pts/scan",
+                "right", "wrong", "rejected", "located", "origin_mm", "rot_deg", "wall_s", "peak_MiB", "input_MiB",
+                "sim_s");
+}
+
 int compare_main(int argc, char** argv, std::string method) {
     CellSpec spec;
     bool header = false, stock = false;
@@ -70,16 +77,17 @@ int compare_main(int argc, char** argv, std::string method) {
         else if (a == "--header") header = true;
         else return usage();
     }
+    if (method.empty() && header) {
+        print_header();
+        return 0;
+    }
     if (method != "partloc" && method != "open3d" && method != "paper") return usage();
     if (spec.spacing <= 0 || spec.positions < 1 || spec.per_position < 1) return usage();
     if (method == "paper" && !paper_pipeline_available()) {
         std::fprintf(stderr, "partloc_bench: the paper's pipeline is not built (no PCL)\n");
         return 5;
     }
-    if (header)
-        std::printf("%-8s %5s %5s %9s %5s %5s %8s %7s %9s %8s %8s %8s %8s %7s\n", "method", "seed", "scans",
-                    "pts/scan", "right", "wrong", "rejected", "located", "origin_mm", "rot_deg", "wall_s",
-                    "peak_MiB", "input_MiB", "sim_s");
+    if (header) print_header();
 
     const auto ts = std::chrono::steady_clock::now();
     sim::SimulatedJob cell;
@@ -133,6 +141,10 @@ int main(int argc, char** argv) {
     const std::string cmd = argv[1];
     if (cmd == "counts") return counts_main(argc - 1, argv + 1);
     if (cmd == "compare") return compare_main(argc - 1, argv + 1, "");
+    if (cmd == "header") {
+        print_header();
+        return 0;
+    }
     if (cmd == "scaling") return compare_main(argc - 1, argv + 1, "partloc");
     return usage();
 }

@@ -17,7 +17,7 @@ PER_POSITION=${PER_POSITION:-"2 4 10"}             # 6, 12, 30 scans (three A po
 mkdir -p "$OUT"
 [ -x "$BENCH" ] || { echo "no $BENCH: build first (cmake --build $BUILD)" >&2; exit 2; }
 
-header() { "$BENCH" compare --method partloc --seed 0 --header 2>/dev/null | head -1; }
+header() { "$BENCH" header; }
 run() {  # one row; a failed process still leaves a line saying so
     local out
     out=$("$@" 2>&1); local rc=$?
