@@ -4,7 +4,10 @@
 //   partloc_bench counts [first_seed] [cells]
 //       partloc over many generated cells: how scans end, the workpiece's error.
 //   partloc_bench compare --method partloc|open3d|paper --seed N [--spacing MM] [--noise MM]
-//                         [--positions P] [--per-position K] [--stock] [--header]
+//                         [--positions P] [--per-position K] [--stock] [--isolate] [--header]
+//       --stock: partloc also builds the stock model (off: like for like with the baselines, which do not);
+//       --isolate: each scan cut down to the fiducial it sees best (a check that a method works without
+//       clutter; the workpiece is cut away too).
 //       one method on one generated cell, in this process: one table row (scans right / wrong / rejected,
 //       workpiece origin and rotation error, wall time and peak memory of the method alone).
 //   partloc_bench header         the column names of the rows.
@@ -36,7 +39,7 @@ int usage() {
     std::fprintf(stderr,
                  "usage: partloc_bench counts [first_seed] [cells]\n"
                  "       partloc_bench compare --method partloc|open3d|paper --seed N [--spacing MM] [--noise MM]\n"
-                 "                             [--positions P] [--per-position K] [--stock] [--header]\n"
+                 "                             [--positions P] [--per-position K] [--stock] [--isolate] [--header]\n"
                  "       partloc_bench scaling (as compare, method partloc)\n");
     return 2;
 }
@@ -55,6 +58,28 @@ MethodOutcome run_partloc(const Job& job, std::uint64_t seed, bool stock) {
     return out;
 }
 
+/// A check of the method, not a benchmark: each scan keeps only its points within 60 mm of the centre of the
+/// fiducial it sees best (by truth), so registration meets no clutter. The workpiece is cropped away with the
+/// rest, so it cannot be located.
+void isolate_fiducials(sim::SimulatedJob& cell) {
+    for (std::size_t i = 0; i < cell.job.scans.size(); ++i) {
+        std::string best;
+        std::size_t most = 0;
+        for (const auto& [name, n] : cell.truth.scans[i].fiducial_points)
+            if (n > most) most = n, best = name;
+        for (const auto& f : cell.job.fiducials) {
+            if (f.name != best || !f.model.mesh) continue;
+            const Eigen::Vector3d centre = cell.truth.scans[i].T_machine_scan.inverse() *
+                                           fiducial_at(cell.job.machine, f, cell.job.scans[i].axes) *
+                                           f.model.mesh->GetAxisAlignedBoundingBox().GetCenter();
+            auto kept = std::make_shared<open3d::geometry::PointCloud>();
+            for (const auto& p : cell.job.scans[i].points->points_)
+                if ((p - centre).norm() < 60.0) kept->points_.push_back(p);
+            cell.job.scans[i].points = kept;
+        }
+    }
+}
+
 void print_header() {
     std::printf("%-8s %5s %5s %9s %5s %5s %8s %7s %9s %8s %8s %8s %8s %7s\n", "method", "seed", "scans", "pts/scan",
                 "right", "wrong", "rejected", "located", "origin_mm", "rot_deg", "wall_s", "peak_MiB", "input_MiB",
@@ -63,7 +88,7 @@ void print_header() {
 
 int compare_main(int argc, char** argv, std::string method) {
     CellSpec spec;
-    bool header = false, stock = false;
+    bool header = false, stock = false, isolate = false;
     for (int i = 1; i < argc; ++i) {
         const std::string a = argv[i];
         const bool has_value = i + 1 < argc;
@@ -74,6 +99,7 @@ int compare_main(int argc, char** argv, std::string method) {
         else if (a == "--positions" && has_value) spec.positions = std::atoi(argv[++i]);
         else if (a == "--per-position" && has_value) spec.per_position = std::atoi(argv[++i]);
         else if (a == "--stock") stock = true;
+        else if (a == "--isolate") isolate = true;
         else if (a == "--header") header = true;
         else return usage();
     }
@@ -104,6 +130,7 @@ int compare_main(int argc, char** argv, std::string method) {
     std::size_t points = 0;
     for (const auto& s : cell.job.scans) points += s.points->points_.size();
 
+    if (isolate) isolate_fiducials(cell);
     const double input_mib = current_memory_mib();
     reset_peak_memory();
     const auto t0 = std::chrono::steady_clock::now();
