@@ -16,6 +16,7 @@
 // Exit codes: 0 a row was printed (whatever the method found), 2 bad arguments, 4 the generator could not
 // lay out this seed's cell, 5 the method is not built (paper without PCL).
 #include <malloc.h>
+#include <open3d/geometry/BoundingVolume.h>
 #include <open3d/utility/Logging.h>
 
 #include <cstdio>
