@@ -24,6 +24,7 @@
 #include <cstring>
 #include <exception>
 #include <string>
+#include <vector>
 
 #include "common.hpp"
 #include "open3d_baseline.hpp"
@@ -45,12 +46,14 @@ int usage() {
     return 2;
 }
 
-MethodOutcome run_partloc(const Job& job, std::uint64_t seed, bool stock) {
+MethodOutcome run_partloc(const Job& job, std::uint64_t seed, bool stock, std::vector<std::string>& notes) {
     RunSettings rs;
     rs.seed = seed;
     rs.build_stock = stock;
     const JobResult r = run_job(job, rs);
     MethodOutcome out;
+    for (std::size_t i = 0; i < r.scans.size(); ++i)
+        if (!r.scans[i].registered) notes.push_back("scan " + std::to_string(i) + " rejected: " + r.scans[i].message);
     for (const auto& s : r.scans)
         out.T_machine_scan.push_back(s.registered ? std::optional<Eigen::Isometry3d>(s.T_machine_scan) : std::nullopt);
     out.located = r.located;
@@ -136,7 +139,8 @@ int compare_main(int argc, char** argv, std::string method) {
     reset_peak_memory();
     const auto t0 = std::chrono::steady_clock::now();
     MethodOutcome out;
-    if (method == "partloc") out = run_partloc(cell.job, spec.seed, stock);
+    std::vector<std::string> notes;
+    if (method == "partloc") out = run_partloc(cell.job, spec.seed, stock, notes);
     else if (method == "open3d") {
         Open3DSettings o;
         o.seed = spec.seed;
@@ -155,6 +159,7 @@ int compare_main(int argc, char** argv, std::string method) {
                 v.located ? "yes" : "no", v.origin_mm, v.rotation_deg, wall, peak, input_mib, sim_s);
     if (!v.located && !out.message.empty()) std::printf("# %s seed %llu: %s\n", method.c_str(),
                                                         static_cast<unsigned long long>(spec.seed), out.message.c_str());
+    for (const auto& n : notes) std::printf("# %s seed %llu: %s\n", method.c_str(), static_cast<unsigned long long>(spec.seed), n.c_str());
     std::fflush(stdout);
     return 0;
 }
