@@ -75,7 +75,8 @@ Eigen::Isometry3d T_machine0_scan(const Job& job, const Scan& scan, const Eigen:
     return job.machine.motion(job.workpiece.moves_with, scan.axes).inverse() * T_machine_scan;
 }
 
-std::shared_ptr<open3d::geometry::PointCloud> fiducial_points(const Fiducial& f, double spacing, bool feature_only) {
+std::shared_ptr<open3d::geometry::PointCloud> fiducial_points(const Fiducial& f, double spacing,
+                                                              bool feature_only) {
     std::shared_ptr<open3d::geometry::PointCloud> all;
     if (f.model.mesh) {
         all = sample_mesh(*f.model.mesh, spacing);
@@ -93,7 +94,8 @@ std::shared_ptr<open3d::geometry::PointCloud> fiducial_points(const Fiducial& f,
         if ((R * n).z() < -0.9) continue;  // stands on it: never seen
         if (feature_only) {
             bool on = false;
-            for (int a = 0; a < 3; ++a) on = on || (std::abs(p[a]) < 1e-3 * (1.0 + p.norm()) && std::abs(n[a]) > 0.99);
+            for (int a = 0; a < 3; ++a)
+                on = on || (std::abs(p[a]) < 1e-3 * (1.0 + p.norm()) && std::abs(n[a]) > 0.99);
             if (!on) continue;
         }
         out->points_.push_back(all->points_[i]);

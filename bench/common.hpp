@@ -17,10 +17,10 @@ namespace partloc::bench {
 /// One generated cell: sim::simulate_random_cell(seed) with the scanner and scan plan below.
 struct CellSpec {
     std::uint64_t seed = 100;
-    double spacing = 0.383;   ///< mm between rays at the working distance (the paper's NextEngine)
-    double noise = 0.13;      ///< mm, 1 sigma along the line of sight
-    int positions = 3;        ///< A values 0..90 deg, evenly spaced (the paper: 0, 45, 90)
-    int per_position = 2;     ///< scans at each A value (the paper: 2)
+    double spacing = 0.383;  ///< mm between rays at the working distance (the paper's NextEngine)
+    double noise = 0.13;     ///< mm, 1 sigma along the line of sight
+    int positions = 3;       ///< A values 0..90 deg, evenly spaced (the paper: 0, 45, 90)
+    int per_position = 2;    ///< scans at each A value (the paper: 2)
 };
 
 /// Throws std::runtime_error when the generator cannot lay out this seed's cell.

@@ -61,15 +61,18 @@ int counts_main(int argc, char** argv) {
             worst_rotation = std::max(worst_rotation, er);
             sum_origin += eo;
         }
-        std::printf("%4llu  %10d  %5d  %6d  %9.4f  %12.4f  %5.1f\n", static_cast<unsigned long long>(seed), reg, wr,
-                    mi, eo, er, s);
+        std::printf("%4llu  %10d  %5d  %6d  %9.4f  %12.4f  %5.1f\n", static_cast<unsigned long long>(seed),
+                    reg, wr, mi, eo, er, s);
         std::fflush(stdout);
     }
-    std::printf("\n%d cells, %d scans: %d registered right, %d registered WRONG, %d rejected with a fiducial in "
-                "view, %d rejected with none in view\n",
-                cells, right + wrong + missed + none_in_view, right, wrong, missed, none_in_view);
-    std::printf("located %d of %d; origin error mean %.4f mm, worst %.4f mm; rotation worst %.4f deg; %.1f s per job\n",
-                located, cells, located ? sum_origin / located : 0.0, worst_origin, worst_rotation, seconds / cells);
+    std::printf(
+        "\n%d cells, %d scans: %d registered right, %d registered WRONG, %d rejected with a fiducial in "
+        "view, %d rejected with none in view\n",
+        cells, right + wrong + missed + none_in_view, right, wrong, missed, none_in_view);
+    std::printf(
+        "located %d of %d; origin error mean %.4f mm, worst %.4f mm; rotation worst %.4f deg; %.1f s per "
+        "job\n",
+        located, cells, located ? sum_origin / located : 0.0, worst_origin, worst_rotation, seconds / cells);
     return 0;
 }
 

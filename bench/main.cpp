@@ -38,11 +38,12 @@ int counts_main(int argc, char** argv);
 namespace {
 
 int usage() {
-    std::fprintf(stderr,
-                 "usage: partloc_bench counts [first_seed] [cells]\n"
-                 "       partloc_bench compare --method partloc|open3d|paper --seed N [--spacing MM] [--noise MM]\n"
-                 "                             [--positions P] [--per-position K] [--stock] [--isolate] [--header]\n"
-                 "       partloc_bench scaling (as compare, method partloc)\n");
+    std::fprintf(
+        stderr,
+        "usage: partloc_bench counts [first_seed] [cells]\n"
+        "       partloc_bench compare --method partloc|open3d|paper --seed N [--spacing MM] [--noise MM]\n"
+        "                             [--positions P] [--per-position K] [--stock] [--isolate] [--header]\n"
+        "       partloc_bench scaling (as compare, method partloc)\n");
     return 2;
 }
 
@@ -53,9 +54,11 @@ MethodOutcome run_partloc(const Job& job, std::uint64_t seed, bool stock, std::v
     const JobResult r = run_job(job, rs);
     MethodOutcome out;
     for (std::size_t i = 0; i < r.scans.size(); ++i)
-        if (!r.scans[i].registered) notes.push_back("scan " + std::to_string(i) + " rejected: " + r.scans[i].message);
+        if (!r.scans[i].registered)
+            notes.push_back("scan " + std::to_string(i) + " rejected: " + r.scans[i].message);
     for (const auto& s : r.scans)
-        out.T_machine_scan.push_back(s.registered ? std::optional<Eigen::Isometry3d>(s.T_machine_scan) : std::nullopt);
+        out.T_machine_scan.push_back(s.registered ? std::optional<Eigen::Isometry3d>(s.T_machine_scan)
+                                                  : std::nullopt);
     out.located = r.located;
     out.T_machine_workpiece = r.workpiece.T_machine_workpiece;
     out.message = r.workpiece.message;
@@ -85,9 +88,9 @@ void isolate_fiducials(sim::SimulatedJob& cell) {
 }
 
 void print_header() {
-    std::printf("%-8s %5s %5s %9s %5s %5s %8s %7s %9s %8s %8s %8s %8s %7s\n", "method", "seed", "scans", "pts/scan",
-                "right", "wrong", "rejected", "located", "origin_mm", "rot_deg", "wall_s", "peak_MiB", "input_MiB",
-                "sim_s");
+    std::printf("%-8s %5s %5s %9s %5s %5s %8s %7s %9s %8s %8s %8s %8s %7s\n", "method", "seed", "scans",
+                "pts/scan", "right", "wrong", "rejected", "located", "origin_mm", "rot_deg", "wall_s",
+                "peak_MiB", "input_MiB", "sim_s");
 }
 
 int compare_main(int argc, char** argv, std::string method) {
@@ -96,16 +99,26 @@ int compare_main(int argc, char** argv, std::string method) {
     for (int i = 1; i < argc; ++i) {
         const std::string a = argv[i];
         const bool has_value = i + 1 < argc;
-        if (a == "--method" && has_value) method = argv[++i];
-        else if (a == "--seed" && has_value) spec.seed = std::strtoull(argv[++i], nullptr, 10);
-        else if (a == "--spacing" && has_value) spec.spacing = std::atof(argv[++i]);
-        else if (a == "--noise" && has_value) spec.noise = std::atof(argv[++i]);
-        else if (a == "--positions" && has_value) spec.positions = std::atoi(argv[++i]);
-        else if (a == "--per-position" && has_value) spec.per_position = std::atoi(argv[++i]);
-        else if (a == "--stock") stock = true;
-        else if (a == "--isolate") isolate = true;
-        else if (a == "--header") header = true;
-        else return usage();
+        if (a == "--method" && has_value)
+            method = argv[++i];
+        else if (a == "--seed" && has_value)
+            spec.seed = std::strtoull(argv[++i], nullptr, 10);
+        else if (a == "--spacing" && has_value)
+            spec.spacing = std::atof(argv[++i]);
+        else if (a == "--noise" && has_value)
+            spec.noise = std::atof(argv[++i]);
+        else if (a == "--positions" && has_value)
+            spec.positions = std::atoi(argv[++i]);
+        else if (a == "--per-position" && has_value)
+            spec.per_position = std::atoi(argv[++i]);
+        else if (a == "--stock")
+            stock = true;
+        else if (a == "--isolate")
+            isolate = true;
+        else if (a == "--header")
+            header = true;
+        else
+            return usage();
     }
     if (method.empty() && header) {
         print_header();
@@ -124,7 +137,8 @@ int compare_main(int argc, char** argv, std::string method) {
     try {
         cell = make_cell(spec);
     } catch (const std::exception& e) {
-        std::printf("%-8s %5llu skipped: %s\n", method.c_str(), static_cast<unsigned long long>(spec.seed), e.what());
+        std::printf("%-8s %5llu skipped: %s\n", method.c_str(), static_cast<unsigned long long>(spec.seed),
+                    e.what());
         return 4;
     }
     const double sim_s = seconds_since(ts);
@@ -140,7 +154,8 @@ int compare_main(int argc, char** argv, std::string method) {
     const auto t0 = std::chrono::steady_clock::now();
     MethodOutcome out;
     std::vector<std::string> notes;
-    if (method == "partloc") out = run_partloc(cell.job, spec.seed, stock, notes);
+    if (method == "partloc")
+        out = run_partloc(cell.job, spec.seed, stock, notes);
     else if (method == "open3d") {
         Open3DSettings o;
         o.seed = spec.seed;
@@ -155,11 +170,15 @@ int compare_main(int argc, char** argv, std::string method) {
     const Verdict v = judge(out, cell);
     const std::size_t n = cell.job.scans.size();
     std::printf("%-8s %5llu %5zu %9zu %5d %5d %8d %7s %9.4f %8.4f %8.2f %8.0f %8.0f %7.1f\n", method.c_str(),
-                static_cast<unsigned long long>(spec.seed), n, n ? points / n : 0, v.right, v.wrong, v.rejected,
-                v.located ? "yes" : "no", v.origin_mm, v.rotation_deg, wall, peak, input_mib, sim_s);
-    if (!v.located && !out.message.empty()) std::printf("# %s seed %llu: %s\n", method.c_str(),
-                                                        static_cast<unsigned long long>(spec.seed), out.message.c_str());
-    for (const auto& n : notes) std::printf("# %s seed %llu: %s\n", method.c_str(), static_cast<unsigned long long>(spec.seed), n.c_str());
+                static_cast<unsigned long long>(spec.seed), n, n ? points / n : 0, v.right, v.wrong,
+                v.rejected, v.located ? "yes" : "no", v.origin_mm, v.rotation_deg, wall, peak, input_mib,
+                sim_s);
+    if (!v.located && !out.message.empty())
+        std::printf("# %s seed %llu: %s\n", method.c_str(), static_cast<unsigned long long>(spec.seed),
+                    out.message.c_str());
+    for (const auto& n : notes)
+        std::printf("# %s seed %llu: %s\n", method.c_str(), static_cast<unsigned long long>(spec.seed),
+                    n.c_str());
     std::fflush(stdout);
     return 0;
 }

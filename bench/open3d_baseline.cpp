@@ -50,10 +50,12 @@ Prepared prepare_scan(const PointCloud& scan, double voxel) {
 MethodOutcome run_open3d(const Job& job, const Open3DSettings& settings) {
     open3d::utility::random::Seed(static_cast<int>(settings.seed));
     const double spacing = job.scanner.point_spacing.value_or(0.383);
-    const double voxel = settings.voxel > 0 ? settings.voxel : std::max(2.5 * spacing, 0.025 * fiducial_diagonal(job));
+    const double voxel =
+        settings.voxel > 0 ? settings.voxel : std::max(2.5 * spacing, 0.025 * fiducial_diagonal(job));
 
     std::vector<Prepared> models;
-    for (const auto& f : job.fiducials) models.push_back(prepare_model(fiducial_points(f, settings.model_spacing), voxel));
+    for (const auto& f : job.fiducials)
+        models.push_back(prepare_model(fiducial_points(f, settings.model_spacing), voxel));
 
     MethodOutcome out;
     out.T_machine_scan.resize(job.scans.size());
@@ -69,13 +71,13 @@ MethodOutcome run_open3d(const Job& job, const Open3DSettings& settings) {
             const reg::CorrespondenceCheckerBasedOnEdgeLength edge(0.9);
             const reg::CorrespondenceCheckerBasedOnDistance distance(1.5 * voxel);
             const reg::RegistrationResult coarse = reg::RegistrationRANSACBasedOnFeatureMatching(
-                    *m.down, *s.down, *m.fpfh, *s.fpfh, settings.mutual_filter, 1.5 * voxel,
-                    reg::TransformationEstimationPointToPoint(false), 3, {edge, distance},
-                    reg::RANSACConvergenceCriteria(settings.ransac_iterations, settings.ransac_confidence));
+                *m.down, *s.down, *m.fpfh, *s.fpfh, settings.mutual_filter, 1.5 * voxel,
+                reg::TransformationEstimationPointToPoint(false), 3, {edge, distance},
+                reg::RANSACConvergenceCriteria(settings.ransac_iterations, settings.ransac_confidence));
             if (coarse.fitness_ <= 0.0) continue;
             const reg::RegistrationResult fine =
-                    reg::RegistrationICP(*m.full, *s.full, 0.4 * voxel, coarse.transformation_,
-                                         reg::TransformationEstimationPointToPlane());
+                reg::RegistrationICP(*m.full, *s.full, 0.4 * voxel, coarse.transformation_,
+                                     reg::TransformationEstimationPointToPlane());
             if (fine.fitness_ > best_fitness) {
                 best_fitness = fine.fitness_;
                 const Eigen::Isometry3d T_scan_fiducial(fine.transformation_);
@@ -103,7 +105,8 @@ MethodOutcome run_open3d(const Job& job, const Open3DSettings& settings) {
                                                      reg::TransformationEstimationPointToPlane(),
                                                      reg::ICPConvergenceCriteria(1e-6, 1e-6, 100));
     r = reg::RegistrationICP(*ref, *merged, 3.0 * spacing, r.transformation_,
-                             reg::TransformationEstimationPointToPlane(), reg::ICPConvergenceCriteria(1e-6, 1e-6, 100));
+                             reg::TransformationEstimationPointToPlane(),
+                             reg::ICPConvergenceCriteria(1e-6, 1e-6, 100));
     if (r.fitness_ <= 0.0) {
         out.message = "ICP of the reference surfaces found no correspondences";
         return out;

@@ -13,8 +13,8 @@ struct Open3DSettings {
     /// Voxel size (mm): max(2.5 x point spacing, 0.025 x the largest fiducial diagonal). The tutorial's
     /// other lengths follow from it: normals 2 voxels, FPFH 5 voxels, RANSAC distance 1.5 voxels,
     /// ICP 0.4 voxel.
-    double voxel = 0.0;  ///< 0: from the rule above
-    double model_spacing = 0.5;  ///< mm, Poisson-disk fiducial models (paper §3.2)
+    double voxel = 0.0;              ///< 0: from the rule above
+    double model_spacing = 0.5;      ///< mm, Poisson-disk fiducial models (paper §3.2)
     int ransac_iterations = 100000;  ///< the tutorial's RANSACConvergenceCriteria(100000, 0.999)
     double ransac_confidence = 0.999;
     /// The tutorial sets mutual_filter=True; on these blocks of planes it keeps too few right matches (an

@@ -13,8 +13,9 @@ namespace partloc::bench {
 bool paper_pipeline_available() { return false; }
 
 MethodOutcome run_paper(const Job&, const PaperSettings&) {
-    throw std::runtime_error("built without PCL: install libpcl-dev (PARTLOC_WITH_PCL=1 scripts/install-deps.sh) "
-                             "and reconfigure");
+    throw std::runtime_error(
+        "built without PCL: install libpcl-dev (PARTLOC_WITH_PCL=1 scripts/install-deps.sh) "
+        "and reconfigure");
 }
 
 #else
@@ -33,7 +34,8 @@ Eigen::Isometry3d to_isometry(const paper::Matrix4& a) {
         for (int c = 0; c < 4; ++c) m(r, c) = a[4 * r + c];
     Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
     // SVD-based estimators return a rotation to float precision; re-orthonormalise before use.
-    const Eigen::JacobiSVD<Eigen::Matrix3d> svd(m.topLeftCorner<3, 3>(), Eigen::ComputeFullU | Eigen::ComputeFullV);
+    const Eigen::JacobiSVD<Eigen::Matrix3d> svd(m.topLeftCorner<3, 3>(),
+                                                Eigen::ComputeFullU | Eigen::ComputeFullV);
     T.linear() = svd.matrixU() * svd.matrixV().transpose();
     T.translation() = m.topRightCorner<3, 1>();
     return T;
@@ -80,7 +82,8 @@ MethodOutcome run_paper(const Job& job, const PaperSettings& settings) {
         return out;
     }
     const auto ref = reference_points(job, settings.model_spacing);
-    const paper::PartFit fit = paper::fit_part(to_points(merged), to_points(ref->points_), paper::PartParams{});
+    const paper::PartFit fit =
+        paper::fit_part(to_points(merged), to_points(ref->points_), paper::PartParams{});
     if (!fit.converged) {
         out.message = "ICP of the reference surfaces did not converge";
         return out;

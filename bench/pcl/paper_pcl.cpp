@@ -27,7 +27,9 @@ using NormalCloud = pcl::PointCloud<pcl::Normal>;
 using PNCloud = pcl::PointCloud<pcl::PointNormal>;
 using Features = pcl::PointCloud<pcl::FPFHSignature33>;
 
-unsigned threads_of(int t) { return t > 0 ? static_cast<unsigned>(t) : std::max(1u, std::thread::hardware_concurrency()); }
+unsigned threads_of(int t) {
+    return t > 0 ? static_cast<unsigned>(t) : std::max(1u, std::thread::hardware_concurrency());
+}
 
 Cloud::Ptr to_cloud(const Points& pts) {
     Cloud::Ptr c(new Cloud);
@@ -54,8 +56,8 @@ bool finite(const pcl::Normal& n) {
 
 /// Points with normals estimated within `radius` on `surface`, facing the viewpoint (the scanner at the scan
 /// origin); points whose normal cannot be estimated are dropped.
-void normals_on(const Cloud::ConstPtr& points, const Cloud::ConstPtr& surface, double radius, unsigned threads,
-                Cloud::Ptr& kept, NormalCloud::Ptr& normals) {
+void normals_on(const Cloud::ConstPtr& points, const Cloud::ConstPtr& surface, double radius,
+                unsigned threads, Cloud::Ptr& kept, NormalCloud::Ptr& normals) {
     NormalCloud all;
     pcl::NormalEstimationOMP<pcl::PointXYZ, pcl::Normal> ne(threads);
     ne.setInputCloud(points);

@@ -14,25 +14,25 @@ using Matrix4 = std::array<double, 16>;  ///< row-major 4x4 rigid transform
 
 /// Table 2, in mm.
 struct ProcessorParams {
-    double normal_radius = 1.0;         ///< normal estimation radius (0.001 m)
-    double model_voxel = 4.0;           ///< downsampling radius for fiducial features (0.004 m)
-    double model_fpfh_radius = 20.0;    ///< FPFH radius for fiducial feature models (0.02 m)
-    double scan_voxel = 4.0;            ///< downsampling radius for scan data (0.004 m)
-    double scan_fpfh_radius = 20.0;     ///< FPFH radius for scan data (0.02 m)
-    int sac_samples = 3;                ///< SAC-IA number of samples
-    int sac_randomness = 2;             ///< SAC-IA correspondence randomness
-    int sac_iterations = 4000;          ///< SAC-IA maximum iterations
+    double normal_radius = 1.0;       ///< normal estimation radius (0.001 m)
+    double model_voxel = 4.0;         ///< downsampling radius for fiducial features (0.004 m)
+    double model_fpfh_radius = 20.0;  ///< FPFH radius for fiducial feature models (0.02 m)
+    double scan_voxel = 4.0;          ///< downsampling radius for scan data (0.004 m)
+    double scan_fpfh_radius = 20.0;   ///< FPFH radius for scan data (0.02 m)
+    int sac_samples = 3;              ///< SAC-IA number of samples
+    int sac_randomness = 2;           ///< SAC-IA correspondence randomness
+    int sac_iterations = 4000;        ///< SAC-IA maximum iterations
     /// SAC-IA's truncation distance, left at PCL's default of 100 (metres in the paper's data): 10^5 mm.
     double sac_max_distance = 1.0e5;
-    int icp_iterations = 400;                 ///< ICP maximum iterations
-    double icp_max_distance = 5.0;            ///< ICP maximum correspondence distance (0.005 m)
-    double icp_transformation_epsilon = 1e-3; ///< 1e-9 m^2: PCL compares it with a squared translation
-    double icp_fitness_epsilon = 2.54;        ///< 2.54e-6 m^2: PCL compares it with a change of mean squared
-                                              ///< distance
+    int icp_iterations = 400;                  ///< ICP maximum iterations
+    double icp_max_distance = 5.0;             ///< ICP maximum correspondence distance (0.005 m)
+    double icp_transformation_epsilon = 1e-3;  ///< 1e-9 m^2: PCL compares it with a squared translation
+    double icp_fitness_epsilon = 2.54;         ///< 2.54e-6 m^2: PCL compares it with a change of mean squared
+                                               ///< distance
     /// §4: a fit succeeds when N_f / sum d^2 exceeds 6,250,000 m^-2 (mean squared distance below
     /// (0.4 mm)^2): 6.25 mm^-2.
     double metric_threshold = 6.25;
-    int threads = 0;  ///< OpenMP threads for normals and FPFH; 0: all
+    int threads = 0;         ///< OpenMP threads for normals and FPFH; 0: all
     std::uint64_t seed = 1;  ///< SAC-IA draws from std::rand; seeded here for repeatable runs
 };
 
@@ -47,19 +47,20 @@ struct FiducialFit {
 /// Fits each model to the scan: normals, voxel grid, FPFH, SAC-IA, ICP with normals, the metric (1).
 /// `scan` is in the scan frame with the scanner at its origin; models carry outward normals.
 std::vector<FiducialFit> fit_fiducials(const Points& scan, const std::vector<Points>& models,
-                                       const std::vector<Normals>& model_normals, const ProcessorParams& params);
+                                       const std::vector<Normals>& model_normals,
+                                       const ProcessorParams& params);
 
 /// Table 3, in mm.
 struct PartParams {
-    double icp_max_distance = 5.0;            ///< 0.005 m
-    double icp_transformation_epsilon = 1e-3; ///< 1e-9 m^2
-    double icp_fitness_epsilon = 2.54;        ///< 2.54e-6 m^2
+    double icp_max_distance = 5.0;             ///< 0.005 m
+    double icp_transformation_epsilon = 1e-3;  ///< 1e-9 m^2
+    double icp_fitness_epsilon = 2.54;         ///< 2.54e-6 m^2
     int icp_iterations = 600;
-    double mls_radius = 2.0;                  ///< MLS search radius (0.002 m)
-    int mls_order = 3;                        ///< MLS polynomial fit order
-    double mls_sqr_gauss = 4.0;               ///< MLS square gauss parameter (0.002^2 m^2)
-    double voxel = 0.5;                       ///< final voxel-grid filter (0.0005 m)
-    int threads = 0;                          ///< OpenMP threads for MLS; 0: all
+    double mls_radius = 2.0;     ///< MLS search radius (0.002 m)
+    int mls_order = 3;           ///< MLS polynomial fit order
+    double mls_sqr_gauss = 4.0;  ///< MLS square gauss parameter (0.002^2 m^2)
+    double voxel = 0.5;          ///< final voxel-grid filter (0.0005 m)
+    int threads = 0;             ///< OpenMP threads for MLS; 0: all
 };
 
 struct PartFit {
