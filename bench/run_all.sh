@@ -8,12 +8,12 @@ set -u
 BUILD=${1:-build}
 OUT=${2:-bench/results}
 BENCH="$BUILD/bench/partloc_bench"
-SEEDS=${SEEDS:-"101 103 106"}
+SEEDS=${SEEDS:-"101 102 106"}
 METHODS=${METHODS:-"partloc open3d paper"}
 PARTS=${PARTS:-"compare points scans"}
 SCALING_SEED=${SCALING_SEED:-106}
 SPACINGS=${SPACINGS:-"0.856 0.383 0.1915 0.1354"}  # about 50 k, 250 k, 1 M, 2 M points per scan
-PER_POSITION=${PER_POSITION:-"2 4 10"}             # 6, 12, 30 scans (three A positions)
+PER_POSITION=${PER_POSITION:-"2 4 10 20"}          # 6, 12, 30, 60 scans (three A positions)
 mkdir -p "$OUT"
 [ -x "$BENCH" ] || { echo "no $BENCH: build first (cmake --build $BUILD)" >&2; exit 2; }
 
