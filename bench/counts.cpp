@@ -1,9 +1,7 @@
 // Counts, over many generated cells, how scans end: registered right, registered wrong, rejected while a
 // fiducial was in view, rejected with none in view. And the located workpiece's error against truth.
-//   build/bench/partloc_bench [first_seed] [cells]
+//   build/bench/partloc_bench counts [first_seed] [cells]
 // Results go to BENCHMARK.md with the command that produced them.
-#include <open3d/utility/Logging.h>
-
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -12,10 +10,9 @@
 #include "partloc/pipeline/run.hpp"
 #include "partloc/sim/scenario.hpp"
 
-using namespace partloc;
+namespace partloc::bench {
 
-int main(int argc, char** argv) {
-    open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
+int counts_main(int argc, char** argv) {
     const std::uint64_t first = argc > 1 ? std::strtoull(argv[1], nullptr, 10) : 100;
     const int cells = argc > 2 ? std::atoi(argv[2]) : 10;
     constexpr std::size_t kSeen = 4000;  // a fiducial with this many true returns is "in view"
@@ -64,14 +61,19 @@ int main(int argc, char** argv) {
             worst_rotation = std::max(worst_rotation, er);
             sum_origin += eo;
         }
-        std::printf("%4llu  %10d  %5d  %6d  %9.4f  %12.4f  %5.1f\n", static_cast<unsigned long long>(seed), reg, wr,
-                    mi, eo, er, s);
+        std::printf("%4llu  %10d  %5d  %6d  %9.4f  %12.4f  %5.1f\n", static_cast<unsigned long long>(seed),
+                    reg, wr, mi, eo, er, s);
         std::fflush(stdout);
     }
-    std::printf("\n%d cells, %d scans: %d registered right, %d registered WRONG, %d rejected with a fiducial in "
-                "view, %d rejected with none in view\n",
-                cells, right + wrong + missed + none_in_view, right, wrong, missed, none_in_view);
-    std::printf("located %d of %d; origin error mean %.4f mm, worst %.4f mm; rotation worst %.4f deg; %.1f s per job\n",
-                located, cells, located ? sum_origin / located : 0.0, worst_origin, worst_rotation, seconds / cells);
+    std::printf(
+        "\n%d cells, %d scans: %d registered right, %d registered WRONG, %d rejected with a fiducial in "
+        "view, %d rejected with none in view\n",
+        cells, right + wrong + missed + none_in_view, right, wrong, missed, none_in_view);
+    std::printf(
+        "located %d of %d; origin error mean %.4f mm, worst %.4f mm; rotation worst %.4f deg; %.1f s per "
+        "job\n",
+        located, cells, located ? sum_origin / located : 0.0, worst_origin, worst_rotation, seconds / cells);
     return 0;
 }
+
+}  // namespace partloc::bench
