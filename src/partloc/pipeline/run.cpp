@@ -286,6 +286,26 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
                 }
             }
         }
+        // A scanner pose that one fiducial's fit alone supports is trusted only when no other fit that passed
+        // its own checks, refuted or not, puts the scanner elsewhere with half its support: a near-symmetric
+        // block, or a shape close to a fiducial's mirror image, fits in more than one way, and a look-alike
+        // of one fiducial can hide where another is (measured: a mirrored model registered a scan 236 mm off
+        // until this check).
+        if (top->corroborated == 0) {
+            const double own = support(*top->source);
+            for (const auto& h : hyps) {
+                if (&h == top || support(*h.source) < 0.5 * own) continue;
+                const Eigen::Isometry3d D = h.T_initial * top->T_initial.inverse();
+                const Eigen::Vector3d c = all_poses[top->source_k] * models[top->source_k].dense.center;
+                if (rotation_angle_deg(D.linear()) > 1.0 || (D * c - c).norm() > 5.0 * sampling) {
+                    r.message = "ambiguous: " + job.fiducials[top->source_k].name +
+                                " alone puts the scanner here, and " + job.fiducials[h.source_k].name +
+                                "'s fit, which passes its own checks, puts it elsewhere" +
+                                fmt(" (%.3g deg, %.3g apart)", rotation_angle_deg(D.linear()), (D * c - c).norm());
+                    return;
+                }
+            }
+        }
         if (!top->contradicted.empty()) {
             if (top->names.size() < 2) {
                 // One fiducial against another: this scan cannot tell which of the two moved.
