@@ -11,6 +11,7 @@
 //       one method on one generated cell, in this process: one table row (scans right / wrong / rejected,
 //       workpiece origin and rotation error, wall time and peak memory of the method alone).
 //   partloc_bench header         the column names of the rows.
+//   partloc_bench nearest        SampleGrid against KDTreeFlann on the fits' nearest-sample queries.
 //   partloc_bench scaling ...    the same as compare --method partloc (a name for the scaling runs).
 //
 // Exit codes: 0 a row was printed (whatever the method found), 2 bad arguments, 4 the generator could not
@@ -34,6 +35,7 @@
 namespace partloc::bench {
 
 int counts_main(int argc, char** argv);
+int nearest_main(int argc, char** argv);
 
 namespace {
 
@@ -192,6 +194,7 @@ int main(int argc, char** argv) {
     if (argc < 2) return usage();
     const std::string cmd = argv[1];
     if (cmd == "counts") return counts_main(argc - 1, argv + 1);
+    if (cmd == "nearest") return nearest_main(argc - 1, argv + 1);
     if (cmd == "compare") return compare_main(argc - 1, argv + 1, "");
     if (cmd == "header") {
         print_header();
