@@ -249,6 +249,15 @@ std::string render_report_html(const Job& job, const JobResult& result, const Re
         for (int i = 0; i < 3; ++i)
             h << "<td class=num><b>" << f.angle(wrap_deg(el[i] - en[i])) << "</b></td>";
         h << "</tr>\n";
+        if (w.uncertainty.available) {
+            h << "<tr><th>± 95 % (uncertainty)</th>";
+            for (int i = 0; i < 3; ++i) h << "<td class=num>± " << f.length(w.uncertainty.origin[i]) << "</td>";
+            for (int i = 0; i < 3; ++i) h << "<td class=num>± " << f.angle(w.uncertainty.euler_deg[i]) << "</td>";
+            h << "</tr>\n";
+        } else {
+            h << "<tr><th>± 95 % (uncertainty)</th><td colspan=6 class=dim>not estimated (fewer than three "
+                 "registered scans)</td></tr>\n";
+        }
     } else {
         h << "<tr><th>located</th><td colspan=6 class=dim>not located</td></tr>\n";
     }
@@ -282,7 +291,9 @@ std::string render_report_html(const Job& job, const JobResult& result, const Re
           << "</td><td class=num>" << fixed(s.score, 2) << "</td><td class=num>" << f.length(s.rmse)
           << "</td><td class=num>" << s.points << "</td><td class=num>" << f.length(s.point_spacing)
           << "</td><td class=num>" << f.length(s.noise) << "</td><td class=num>" << fixed(s.seconds, 2)
-          << "</td><td>" << escape_html(s.message) << "</td></tr>\n";
+          << "</td><td>" << escape_html(s.message);
+        for (const auto& warning : s.warnings) h << "<br><b>warning:</b> " << escape_html(warning);
+        h << "</td></tr>\n";
     }
     if (result.scans.empty()) h << "<tr><td colspan=12 class=dim>no scan results</td></tr>\n";
     h << "</table>\n";
