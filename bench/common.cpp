@@ -50,21 +50,10 @@ Eigen::Isometry3d fiducial_at(const Machine& machine, const Fiducial& f, const A
            f.T_machine_fiducial;
 }
 
-namespace {
-Eigen::AlignedBox3d model_box(const ModelSource& m) {
-    Eigen::AlignedBox3d box;
-    if (m.mesh)
-        for (const auto& v : m.mesh->vertices_) box.extend(v);
-    if (m.points)
-        for (const auto& v : m.points->points_) box.extend(v);
-    return box;
-}
-}  // namespace
-
 Eigen::AlignedBox3d workpiece_region(const Job& job, double spacing) {
     if (job.workpiece.region) return *job.workpiece.region;
-    Eigen::AlignedBox3d region = model_box(job.workpiece.reference_surfaces);
-    if (job.workpiece.final_part) region.extend(model_box(*job.workpiece.final_part));
+    Eigen::AlignedBox3d region = bounding_box(job.workpiece.reference_surfaces);
+    if (job.workpiece.final_part) region.extend(bounding_box(*job.workpiece.final_part));
     const double margin = 0.15 * region.diagonal().norm() + 5.0 * spacing;
     region.min() -= Eigen::Vector3d::Constant(margin);
     region.max() += Eigen::Vector3d::Constant(margin);
@@ -117,7 +106,7 @@ std::shared_ptr<open3d::geometry::PointCloud> reference_points(const Job& job, d
 
 double fiducial_diagonal(const Job& job) {
     double d = 0.0;
-    for (const auto& f : job.fiducials) d = std::max(d, model_box(f.model).diagonal().norm());
+    for (const auto& f : job.fiducials) d = std::max(d, bounding_box(f.model).diagonal().norm());
     return d;
 }
 

@@ -15,6 +15,15 @@ double millimetres_per_unit(const std::string& units) {
     throw std::invalid_argument("unknown unit '" + units + "' (known: mm, m, in, cm, um)");
 }
 
+Eigen::AlignedBox3d bounding_box(const ModelSource& m) {
+    Eigen::AlignedBox3d box;
+    if (m.mesh)
+        for (const auto& v : m.mesh->vertices_) box.extend(v);
+    if (m.points)
+        for (const auto& v : m.points->points_) box.extend(v);
+    return box;
+}
+
 double default_pose_sigma(const std::string& units) { return 0.005 / millimetres_per_unit(units); }
 
 ModelSource union_of_datums(const std::vector<Datum>& datums) {

@@ -88,6 +88,9 @@ struct Job {
 /// Factor that converts a length in `units` to millimetres; throws std::invalid_argument on an unknown unit.
 double millimetres_per_unit(const std::string& units);
 
+/// Axis-aligned bounding box of a model's vertices or points (empty for an empty model).
+Eigen::AlignedBox3d bounding_box(const ModelSource& model);
+
 /// The union of the datums' surfaces as one model (the reference surfaces of a job that names only datums):
 /// one mesh when every datum is a mesh, else points (meshes sampled at 1/400 of their union's diagonal;
 /// normals kept only when every part has them). Its file is "datums". Empty when there are no datums.

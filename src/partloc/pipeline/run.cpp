@@ -33,14 +33,6 @@ std::string fmt(const char* f, double a, double b = 0, double c = 0) {
     return buf;
 }
 
-Eigen::AlignedBox3d model_box(const ModelSource& m) {
-    Eigen::AlignedBox3d box;
-    if (m.mesh)
-        for (const auto& v : m.mesh->vertices_) box.extend(v);
-    if (m.points)
-        for (const auto& v : m.points->points_) box.extend(v);
-    return box;
-}
 
 double median_of(std::vector<double> v) {
     std::sort(v.begin(), v.end());
@@ -92,7 +84,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     // One sampling for the global fit, from the fiducials' size (Drost: 0.03-0.05 of the diameter), never
     // finer than the scans resolve.
     std::vector<double> diameters, spacings;
-    for (const auto& f : job.fiducials) diameters.push_back(model_box(f.model).diagonal().norm());
+    for (const auto& f : job.fiducials) diameters.push_back(bounding_box(f.model).diagonal().norm());
     for (const auto& w : work)
         if (w.scale.spacing > 0) spacings.push_back(w.scale.spacing);
     const double spacing = spacings.empty() ? 0.0 : median_of(spacings);
@@ -112,8 +104,8 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     if (job.workpiece.region) {
         region = *job.workpiece.region;
     } else {
-        region = model_box(job.workpiece.reference_surfaces);
-        if (job.workpiece.final_part) region.extend(model_box(*job.workpiece.final_part));
+        region = bounding_box(job.workpiece.reference_surfaces);
+        if (job.workpiece.final_part) region.extend(bounding_box(*job.workpiece.final_part));
         const double margin = 0.15 * region.diagonal().norm() + 5.0 * spacing;
         region.min() -= Eigen::Vector3d::Constant(margin);
         region.max() += Eigen::Vector3d::Constant(margin);
@@ -438,7 +430,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     result.merged = merged;
 
     const auto& ref = job.workpiece.reference_surfaces;
-    const double ref_d = model_box(ref).diagonal().norm();
+    const double ref_d = bounding_box(ref).diagonal().norm();
     const double ref_spacing = std::max(spacing, ref_d / 400.0);
     // Oriented samples of a nominal model (reference surfaces or a datum); null when it is empty.
     const auto oriented_samples = [&](const ModelSource& m) -> std::shared_ptr<open3d::geometry::PointCloud> {

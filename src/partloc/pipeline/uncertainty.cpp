@@ -30,14 +30,6 @@ Eigen::Vector3d euler_difference(const Eigen::Vector3d& a, const Eigen::Vector3d
     return Eigen::Vector3d(wrap_deg(a.x() - b.x()), wrap_deg(a.y() - b.y()), wrap_deg(a.z() - b.z()));
 }
 
-Eigen::AlignedBox3d model_box(const ModelSource& m) {
-    Eigen::AlignedBox3d box;
-    if (m.mesh)
-        for (const auto& v : m.mesh->vertices_) box.extend(v);
-    if (m.points)
-        for (const auto& v : m.points->points_) box.extend(v);
-    return box;
-}
 
 }  // namespace
 
@@ -112,7 +104,7 @@ void estimate_uncertainty(const Job& job, const UncertaintyInputs& in, Workpiece
         if (share <= 0) continue;
         const auto& fid = job.fiducials[f];
         const double sigma = fid.pose_sigma;  // the loader sets the default, 0.005 mm; 0 means exact
-        const auto box = model_box(fid.model);
+        const auto box = bounding_box(fid.model);
         const double half = std::max(0.5 * box.diagonal().norm(), 1e-9);
         const double sr = sigma / half;  // radians
         const Eigen::Vector3d r = full.origin - fid.T_machine_fiducial * box.center();
