@@ -45,21 +45,6 @@ Verdict judge(const MethodOutcome& outcome, const sim::SimulatedJob& cell) {
     return v;
 }
 
-Eigen::Isometry3d fiducial_at(const Machine& machine, const Fiducial& f, const AxisValues& q) {
-    return machine.motion(f.moves_with, q) * machine.motion(f.moves_with, f.probed_at).inverse() *
-           f.T_machine_fiducial;
-}
-
-Eigen::AlignedBox3d workpiece_region(const Job& job, double spacing) {
-    if (job.workpiece.region) return *job.workpiece.region;
-    Eigen::AlignedBox3d region = bounding_box(job.workpiece.reference_surfaces);
-    if (job.workpiece.final_part) region.extend(bounding_box(*job.workpiece.final_part));
-    const double margin = 0.15 * region.diagonal().norm() + 5.0 * spacing;
-    region.min() -= Eigen::Vector3d::Constant(margin);
-    region.max() += Eigen::Vector3d::Constant(margin);
-    return region;
-}
-
 Eigen::Isometry3d T_machine0_scan(const Job& job, const Scan& scan, const Eigen::Isometry3d& T_machine_scan) {
     return job.machine.motion(job.workpiece.moves_with, scan.axes).inverse() * T_machine_scan;
 }

@@ -43,12 +43,7 @@ struct Verdict {
 };
 Verdict judge(const MethodOutcome& outcome, const sim::SimulatedJob& cell);
 
-/// A fiducial's pose at axis values q (SPEC "Machine axes").
-Eigen::Isometry3d fiducial_at(const Machine& machine, const Fiducial& f, const AxisValues& q);
-
-/// The workpiece region as partloc's run uses it: the crop box, or the nominal reference surfaces and final
-/// part with a margin of 0.15 of their diagonal plus 5 spacings. Machine frame, axes at 0.
-Eigen::AlignedBox3d workpiece_region(const Job& job, double spacing);
+// fiducial_at and workpiece_region: pipeline/job.hpp, shared with `run`.
 
 /// Maps the points of a scan taken at its axis values to the machine frame with the workpiece's axes at 0.
 Eigen::Isometry3d T_machine0_scan(const Job& job, const Scan& scan, const Eigen::Isometry3d& T_machine_scan);

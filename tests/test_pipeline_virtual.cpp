@@ -1,6 +1,7 @@
 // The whole pipeline on virtual cells with a known answer: shapes partloc has never seen, scanner noise
 // 0.13 mm, clutter from pallet, chuck and trunnion, fiducials whose bottom sits on the pallet (issue 2).
 #include <gtest/gtest.h>
+#include <open3d/geometry/BoundingVolume.h>
 #include <open3d/utility/Logging.h>
 
 #include <algorithm>
@@ -114,6 +115,57 @@ TEST(MovedFiducial, IsNamedAndNoScanIsRegisteredWrongly) {
     }
     EXPECT_GT(named, 0) << "no scan names the moved fiducial";
     EXPECT_GE(registered, 1);  // safety over recall: scans that cannot tell which fiducial moved are rejected
+    ASSERT_TRUE(result.located) << result.workpiece.message;
+    EXPECT_LT(pose_error(result.workpiece.T_machine_workpiece, sj.truth.T_machine_workpiece).translation, 0.05);
+}
+
+// A scan that sees the part and one fiducial only, where that fiducial was knocked 15 mm and 4 degrees from
+// its probed pose: that fiducial's fit alone would place the scan wrongly. The part's points then lie off the
+// part that the other scans locate, and the scan must be rejected with that reason, not registered.
+TEST(LoneFiducialMoved, ScanItAlonePlacesIsRejected) {
+    open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
+    sim::SimulatedJob sj = sim::simulate_random_cell(3);
+    ASSERT_EQ(sj.job.fiducials[0].name, "A");
+    // Scan 0 keeps only A's and the part's points.
+    const auto& s0 = sj.scans[0];
+    auto kept = std::make_shared<open3d::geometry::PointCloud>();
+    std::size_t of_a = 0;
+    for (std::size_t k = 0; k < s0.points->points_.size(); ++k) {
+        const int b = s0.body[k];
+        if (b < 0) continue;
+        const auto& body = sj.cell.bodies[b];
+        if (body.name == "A" || body.kind == sim::BodyKind::Workpiece) kept->points_.push_back(s0.points->points_[k]);
+        of_a += body.name == "A";
+    }
+    ASSERT_GT(of_a, 5000u) << "scan 0 must see A well for this test";
+    sj.job.scans[0].points = kept;
+    // A's probed pose is now 15 mm and 4 degrees from where A is: the job thinks A is elsewhere.
+    auto& A = sj.job.fiducials[0];
+    const Eigen::Vector3d centre = A.T_machine_fiducial * A.model.mesh->GetAxisAlignedBoundingBox().GetCenter();
+    Eigen::Isometry3d knock = Eigen::Isometry3d::Identity();
+    knock.translate(centre + Eigen::Vector3d(15.0, 0.0, 0.0));
+    knock.rotate(Eigen::AngleAxisd(4.0 * M_PI / 180.0, Eigen::Vector3d::UnitZ()));
+    knock.translate(-centre);
+    A.T_machine_fiducial = knock * A.T_machine_fiducial;
+    RunSettings rs;
+    rs.build_stock = false;
+    const JobResult result = run_job(sj.job, rs);
+    for (const auto& r : result.scans) {
+        std::string fids;
+        for (const auto& f : r.fiducials) fids += " " + f;
+        std::printf("  %s: %s%s | %s\n", r.file.c_str(), r.registered ? "registered by" : "rejected", fids.c_str(),
+                    r.message.c_str());
+    }
+    const auto& r0 = result.scans[0];
+    EXPECT_FALSE(r0.registered) << "scan 0 registered by the knocked fiducial alone";
+    EXPECT_NE(r0.message.find("A moved"), std::string::npos) << r0.message;
+    const Eigen::Vector3d at = sj.truth.T_machine_workpiece.translation();
+    for (std::size_t i = 0; i < result.scans.size(); ++i) {
+        const auto& r = result.scans[i];
+        if (!r.registered) continue;
+        const Eigen::Isometry3d D = r.T_machine_scan * sj.truth.scans[i].T_machine_scan.inverse();
+        EXPECT_LT((D * at - at).norm(), 0.1) << r.file;
+    }
     ASSERT_TRUE(result.located) << result.workpiece.message;
     EXPECT_LT(pose_error(result.workpiece.T_machine_workpiece, sj.truth.T_machine_workpiece).translation, 0.05);
 }

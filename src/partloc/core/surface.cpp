@@ -12,10 +12,10 @@
 
 namespace partloc {
 
-int Surface::nearest(const Eigen::Vector3d& p, double* squared_distance) const {
+int Surface::nearest(const Eigen::Vector3d& p, double* squared_distance, double max_distance) const {
     int idx = -1;
     double d2 = 0.0;
-    if (grid.nearest(p, 1, std::numeric_limits<double>::infinity(), &idx, &d2) < 1) return -1;
+    if (grid.nearest(p, 1, max_distance, &idx, &d2) < 1) return -1;
     if (squared_distance) *squared_distance = d2;
     return idx;
 }

@@ -5,6 +5,7 @@
 #include <open3d/geometry/TriangleMesh.h>
 
 #include <Eigen/Core>
+#include <limits>
 #include <memory>
 #include <vector>
 
@@ -23,8 +24,10 @@ struct Surface {
     double diameter = 0.0;                             ///< bounding-box diagonal (job units)
     double spacing = 0.0;                              ///< typical distance between samples (job units)
 
-    /// Index of the nearest sample and its squared distance; -1 when the surface is empty.
-    int nearest(const Eigen::Vector3d& p, double* squared_distance) const;
+    /// Index of the nearest sample and its squared distance; -1 when the surface is empty or no sample lies
+    /// within max_distance (a bound makes far queries cheap: the grid search stops at it).
+    int nearest(const Eigen::Vector3d& p, double* squared_distance,
+                double max_distance = std::numeric_limits<double>::infinity()) const;
 };
 
 /// Builds a Surface from points that carry normals (throws std::invalid_argument without normals).

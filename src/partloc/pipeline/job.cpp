@@ -24,6 +24,21 @@ Eigen::AlignedBox3d bounding_box(const ModelSource& m) {
     return box;
 }
 
+Eigen::Isometry3d fiducial_at(const Machine& machine, const Fiducial& f, const AxisValues& q) {
+    return machine.motion(f.moves_with, q) * machine.motion(f.moves_with, f.probed_at).inverse() *
+           f.T_machine_fiducial;
+}
+
+Eigen::AlignedBox3d workpiece_region(const Job& job, double spacing) {
+    if (job.workpiece.region) return *job.workpiece.region;
+    Eigen::AlignedBox3d region = bounding_box(job.workpiece.reference_surfaces);
+    if (job.workpiece.final_part) region.extend(bounding_box(*job.workpiece.final_part));
+    const double margin = 0.15 * region.diagonal().norm() + 5.0 * spacing;
+    region.min() -= Eigen::Vector3d::Constant(margin);
+    region.max() += Eigen::Vector3d::Constant(margin);
+    return region;
+}
+
 double default_pose_sigma(const std::string& units) { return 0.005 / millimetres_per_unit(units); }
 
 ModelSource union_of_datums(const std::vector<Datum>& datums) {

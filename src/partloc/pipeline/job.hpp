@@ -91,6 +91,14 @@ double millimetres_per_unit(const std::string& units);
 /// Axis-aligned bounding box of a model's vertices or points (empty for an empty model).
 Eigen::AlignedBox3d bounding_box(const ModelSource& model);
 
+/// Where fiducial `f` is at axis values `q`: its probed pose moved by its axes from where it was probed.
+Eigen::Isometry3d fiducial_at(const Machine& machine, const Fiducial& f, const AxisValues& q);
+
+/// The region of the machine frame (axes at 0) where the workpiece's points are looked for: the job's crop
+/// box, or the nominal reference surfaces and final part with a margin for the part's uncertain pose
+/// (0.15 of their diagonal plus 5 point spacings).
+Eigen::AlignedBox3d workpiece_region(const Job& job, double spacing);
+
 /// The union of the datums' surfaces as one model (the reference surfaces of a job that names only datums):
 /// one mesh when every datum is a mesh, else points (meshes sampled at 1/400 of their union's diagonal;
 /// normals kept only when every part has them). Its file is "datums". Empty when there are no datums.

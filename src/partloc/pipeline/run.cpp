@@ -40,15 +40,62 @@ double median_of(std::vector<double> v) {
 }
 
 /// A fiducial's pose at axis values q (SPEC "Machine axes"): T(q) = M(q) M(q_probed)^-1 T_probed.
-Eigen::Isometry3d fiducial_at(const Machine& machine, const Fiducial& f, const AxisValues& q) {
-    return machine.motion(f.moves_with, q) * machine.motion(f.moves_with, f.probed_at).inverse() *
-           f.T_machine_fiducial;
-}
-
 struct ScanWork {
     Scale scale;
     std::shared_ptr<open3d::geometry::PointCloud> workpiece_points;  ///< machine frame, axes 0, with normals
 };
+
+/// The scans registered by one fiducial alone whose part, fitted on that scan's points alone, lies off the
+/// part located from all scans: a look-alike of that fiducial, or that fiducial moved, placed them. The test
+/// is how far the scan's own fit moves its points along the surfaces' normals (RMS over the points on the
+/// reference surfaces), against five times the noise; directions the scan leaves free move no point along a
+/// normal and do not count (and do not bias the merged fit either). Such scans are marked not registered,
+/// with the reason; returns whether any was. Needs three registered scans.
+bool reject_inconsistent_scans(const std::vector<ScanWork>& work, const WorkpieceFit& fit,
+                               const Surface& reference, const WorkpieceFitSettings& wfs,
+                               std::vector<ScanResult>& scans) {
+    std::size_t registered = 0;
+    for (const auto& r : scans) registered += r.registered;
+    if (registered < 3) return false;
+    const Eigen::Isometry3d T_nominal_machine = fit.T_correction.inverse();
+    bool any = false;
+    for (std::size_t i = 0; i < scans.size(); ++i) {
+        ScanResult& r = scans[i];
+        if (!r.registered || r.fiducials.size() >= 2 || !work[i].workpiece_points) continue;
+        const auto& wp = *work[i].workpiece_points;
+        std::vector<Eigen::Vector3d> pts, normals;
+        for (const auto& p : wp.points_) pts.push_back(T_nominal_machine * p);
+        if (wp.HasNormals())
+            for (const auto& n : wp.normals_) normals.push_back(T_nominal_machine.linear() * n);
+        const WorkpieceFit own = fit_reference_surfaces(pts, reference, wfs, normals.empty() ? nullptr : &normals);
+        if (own.inliers < wfs.min_inliers) continue;  // too little of the part in this scan to tell
+        double sum = 0.0;
+        std::size_t on = 0;
+        for (const auto& p : pts) {
+            const Eigen::Vector3d q = own.T_correction * p;
+            double d2 = 0.0;
+            const int k = reference.nearest(q, &d2, own.distance);
+            if (k < 0) continue;
+            const double along = (q - p).dot(reference.normals[k]);
+            sum += along * along;
+            ++on;
+        }
+        if (on < wfs.min_inliers) continue;
+        const double moved = std::sqrt(sum / on);
+        if (moved <= 5.0 * wfs.noise) continue;
+        r.message = "only " + r.fiducials.front() + "'s fit places this scan, and the part it shows lies" +
+                    fmt(" %.3g off the part the scans locate", moved) + ": " + r.fiducials.front() +
+                    " moved, or a shape like it elsewhere placed the scan";
+        r.registered = false;
+        r.fiducials.clear();
+        r.T_machine_scan = Eigen::Isometry3d::Identity();
+        r.information = Matrix6d::Zero();
+        r.score = r.rmse = 0.0;
+        r.warnings.clear();
+        any = true;
+    }
+    return any;
+}
 
 }  // namespace
 
@@ -98,18 +145,8 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         models[k] = prepare_model(f.name, f.model.mesh.get(), f.model.points.get(), dense, sampling);
     });
 
-    // The workpiece region: the crop box, or the nominal reference surfaces and final part with a margin
-    // for the part's uncertain pose.
-    Eigen::AlignedBox3d region;
-    if (job.workpiece.region) {
-        region = *job.workpiece.region;
-    } else {
-        region = bounding_box(job.workpiece.reference_surfaces);
-        if (job.workpiece.final_part) region.extend(bounding_box(*job.workpiece.final_part));
-        const double margin = 0.15 * region.diagonal().norm() + 5.0 * spacing;
-        region.min() -= Eigen::Vector3d::Constant(margin);
-        region.max() += Eigen::Vector3d::Constant(margin);
-    }
+    // The workpiece region: the crop box, or the nominal part with a margin for its uncertain pose.
+    const Eigen::AlignedBox3d region = workpiece_region(job, spacing);
 
     // The processor (§3.4.1), scans in parallel; each scan's outcome depends on that scan alone.
     LocalizeSettings ls;
@@ -397,6 +434,22 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         if (wp->points_.size() >= 10) {
             wp->EstimateNormals(open3d::geometry::KDTreeSearchParamHybrid(3.5 * work[i].scale.spacing, 30));
             wp->OrientNormalsTowardsCameraLocation(T_machine0_scan * ps.viewpoint);
+        } else if (r.fiducials.size() < 2 && top->corroborated == 0) {
+            // One fiducial's fit alone placed the scan, and it puts nothing of the scan where the part is:
+            // a look-alike of that fiducial (measured: a scan with every fiducial point removed was
+            // registered 222 mm off by a support block shaped like one), or a scan that misses the part,
+            // which the part's fit could not use anyway.
+            r.registered = false;
+            r.fiducials.clear();
+            r.T_machine_scan = Eigen::Isometry3d::Identity();
+            r.information = Matrix6d::Zero();
+            r.score = r.rmse = 0.0;
+            r.warnings.clear();
+            r.message = "only " + job.fiducials[top->source_k].name +
+                        "'s fit places this scan, and it puts nothing of the scan in the workpiece's region: " +
+                        job.fiducials[top->source_k].name +
+                        " moved, or a shape like it elsewhere placed the scan, or the scan misses the part";
+            wp->points_.clear();
         } else {
             wp->points_.clear();
             r.warnings.push_back("registered, but it shows nothing of the workpiece in its region");
@@ -406,13 +459,23 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     });
 
     // The part (§3.4.2): merge, clean, fit the reference surfaces.
-    auto merged = std::make_shared<open3d::geometry::PointCloud>();
+    std::shared_ptr<open3d::geometry::PointCloud> merged;
     std::size_t registered = 0;
-    for (std::size_t i = 0; i < job.scans.size(); ++i) {
-        if (!result.scans[i].registered) continue;
-        ++registered;
-        *merged += *work[i].workpiece_points;
-    }
+    // Overlapping scans repeat the same surface: one point per voxel of the scans' spacing keeps the shape
+    // and the fit's information, at a fraction of the cost of the outlier test and the fit.
+    const auto merge_registered = [&] {
+        merged = std::make_shared<open3d::geometry::PointCloud>();
+        registered = 0;
+        for (std::size_t i = 0; i < job.scans.size(); ++i) {
+            if (!result.scans[i].registered) continue;
+            ++registered;
+            *merged += *work[i].workpiece_points;
+        }
+        if (registered == 0) return;
+        merged = merged->VoxelDownSample(spacing);
+        if (merged->points_.size() > 30) merged = std::get<0>(merged->RemoveStatisticalOutliers(20, 2.5));
+    };
+    merge_registered();
     WorkpieceResult& w = result.workpiece;
     w.T_machine_workpiece_nominal = job.workpiece.T_machine_workpiece;
     w.fit = job.workpiece.fit == WorkpieceFitMode::Datums ? "datums" : "simultaneous";
@@ -421,13 +484,6 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         result.seconds = seconds_since(t0);
         return result;
     }
-    // Overlapping scans repeat the same surface: one point per voxel of the scans' spacing keeps the shape
-    // and the fit's information, at a fraction of the cost of the outlier test and the fit.
-    merged = merged->VoxelDownSample(spacing);
-    if (merged->points_.size() > 30) {
-        merged = std::get<0>(merged->RemoveStatisticalOutliers(20, 2.5));
-    }
-    result.merged = merged;
 
     const auto& ref = job.workpiece.reference_surfaces;
     const double ref_d = bounding_box(ref).diagonal().norm();
@@ -456,8 +512,16 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     WorkpieceFitSettings wfs;
     wfs.noise = median_of(noises);
     wfs.spacing = spacing;
-    const WorkpieceFit fit = fit_reference_surfaces(merged->points_, reference, wfs,
-                                                    merged->HasNormals() ? &merged->normals_ : nullptr);
+    WorkpieceFit fit = fit_reference_surfaces(merged->points_, reference, wfs,
+                                              merged->HasNormals() ? &merged->normals_ : nullptr);
+    // A scan that one fiducial's fit alone placed, whose part points do not lie on the part that the other
+    // scans locate, was placed by a look-alike of that fiducial: it is left out and the part fitted again.
+    if (fit.ok && reject_inconsistent_scans(work, fit, reference, wfs, result.scans)) {
+        merge_registered();
+        fit = fit_reference_surfaces(merged->points_, reference, wfs,
+                                     merged->HasNormals() ? &merged->normals_ : nullptr);
+    }
+    result.merged = merged;
     w.rmse = fit.rmse;
     w.points = merged->points_.size();
     w.inliers = fit.inliers;
