@@ -87,6 +87,10 @@ int main(int argc, char** argv) {
     int trials = 0, located = 0;
     int inside_o[3] = {0, 0, 0}, inside_e[3] = {0, 0, 0}, with_u = 0;
     double sum_o = 0, worst_o = 0, sum_r = 0, worst_r = 0, seconds = 0;
+    // Squared errors and squared 1-sigma bounds per component, for RMS error against the bound.
+    Eigen::Vector3d se_o = Eigen::Vector3d::Zero(), se_e = Eigen::Vector3d::Zero();
+    Eigen::Vector3d sb_o = Eigen::Vector3d::Zero(), sb_e = Eigen::Vector3d::Zero();
+    Eigen::Vector3d su_o = Eigen::Vector3d::Zero(), su_e = Eigen::Vector3d::Zero();
     std::printf("seed   origin error x y z (mm)          half-width x y z (mm)           euler error a b c (deg)        half-width a b c (deg)         run_s\n");
     for (int t = 0; t < count; ++t) {
         const std::uint64_t seed = first + t;
@@ -152,6 +156,12 @@ int main(int argc, char** argv) {
                         u.euler_deg.y(), u.euler_deg.z());
             if (u.available) {
                 ++with_u;
+                se_o += eo.cwiseAbs2();
+                se_e += ee.cwiseAbs2();
+                sb_o += u.origin_noise.cwiseAbs2();
+                sb_e += u.euler_noise.cwiseAbs2();
+                su_o += (u.origin / 1.96).cwiseAbs2();
+                su_e += (u.euler_deg / 1.96).cwiseAbs2();
                 for (int k = 0; k < 3; ++k) {
                     inside_o[k] += std::abs(eo(k)) <= u.origin(k);
                     inside_e[k] += std::abs(ee(k)) <= u.euler_deg(k);
@@ -194,5 +204,14 @@ int main(int argc, char** argv) {
                     "b %.1f%% c %.1f%%\n",
                     with_u, 100.0 * inside_o[0] / with_u, 100.0 * inside_o[1] / with_u, 100.0 * inside_o[2] / with_u,
                     100.0 * inside_e[0] / with_u, 100.0 * inside_e[1] / with_u, 100.0 * inside_e[2] / with_u);
+    if (with_u) {
+        auto rms = [&](const Eigen::Vector3d& v) { return (v / with_u).cwiseSqrt(); };
+        const Eigen::Vector3d eo = rms(se_o), ee = rms(se_e), bo = rms(sb_o), be = rms(sb_e), uo = rms(su_o),
+                              ue = rms(su_e);
+        std::printf("RMS error against the bound over %d trials (origin mm x y z | euler deg a b c):\n", with_u);
+        std::printf("  measured error          %.4f %.4f %.4f | %.4f %.4f %.4f\n", eo.x(), eo.y(), eo.z(), ee.x(), ee.y(), ee.z());
+        std::printf("  noise bound (1 sigma)   %.4f %.4f %.4f | %.4f %.4f %.4f\n", bo.x(), bo.y(), bo.z(), be.x(), be.y(), be.z());
+        std::printf("  reported sigma (u/1.96) %.4f %.4f %.4f | %.4f %.4f %.4f\n", uo.x(), uo.y(), uo.z(), ue.x(), ue.y(), ue.z());
+    }
     return 0;
 }
