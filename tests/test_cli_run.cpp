@@ -12,23 +12,15 @@
 #include <sstream>
 
 #include "partloc/io/cloud_io.hpp"
+#include "test_util.hpp"
 
 namespace fs = std::filesystem;
 
+using namespace partloc::test;
+
 namespace {
 
-std::string slurp(const fs::path& p) {
-    std::ifstream in(p, std::ios::binary);
-    std::ostringstream s;
-    s << in.rdbuf();
-    return s.str();
-}
 
-void spit(const fs::path& p, const std::string& bytes) {
-    fs::create_directories(p.parent_path());
-    std::ofstream out(p, std::ios::binary);
-    out << bytes;
-}
 
 struct Outcome {
     int code = -1;

@@ -22,8 +22,10 @@
 #include "partloc/io/job_io.hpp"
 #include "partloc/io/job_writer.hpp"
 #include "partloc/sim/scenario.hpp"
+#include "test_util.hpp"
 
 using namespace partloc;
+using namespace partloc::test;
 namespace fs = std::filesystem;
 
 namespace {
@@ -395,41 +397,8 @@ INSTANTIATE_TEST_SUITE_P(Seeds, DatumCell, ::testing::Values(11, 12, 13, -1, -2)
 // ---------------------------------------------------------------------------------------------------------
 // The job file and the whole run
 
-namespace {
-
-struct Folder {
-    fs::path dir;
-    Folder() {
-        static std::atomic<int> n{0};
-        dir = fs::temp_directory_path() /
-              ("partloc_test_datums_" + std::to_string(::getpid()) + "_" + std::to_string(n++));
-        fs::remove_all(dir);
-        fs::create_directories(dir);
-    }
-    ~Folder() {
-        std::error_code ec;
-        fs::remove_all(dir, ec);
-    }
-    fs::path write(const std::string& name, const std::string& text) const {
-        std::ofstream(dir / name) << text;
-        return dir / name;
-    }
-};
-
-void expect_error(const fs::path& job, const std::string& phrase) {
-    try {
-        io::load_job(job);
-        ADD_FAILURE() << "no error; expected '" << phrase << "'";
-    } catch (const io::InputError& e) {
-        EXPECT_EQ(e.file(), job.string());
-        EXPECT_NE(std::string(e.what()).find(phrase), std::string::npos) << e.what();
-    }
-}
-
-}  // namespace
-
 TEST(DatumJob, FieldsDefaultsAndErrors) {
-    Folder f;
+    TempFolder f("partloc_test_datums");
     f.write("a.obj", "v 0 0 0\nv 10 0 0\nv 0 10 0\nf 1 2 3\n");
     f.write("b.obj", "v 0 0 0\nv 10 0 0\nv 0 0 10\nf 1 3 2\n");
     f.write("c.xyz", "0 0 0\n0 10 0\n0 0 10\n0 5 5\n");
@@ -466,22 +435,22 @@ TEST(DatumJob, FieldsDefaultsAndErrors) {
     EXPECT_EQ(job.workpiece.fit, WorkpieceFitMode::Simultaneous);
     EXPECT_TRUE(job.workpiece.datums.empty());
 
-    expect_error(f.write("job.yaml", head + "  reference_surfaces: c.xyz\n  fit: datums\n"),
+    expect_job_error(f.write("job.yaml", head + "  reference_surfaces: c.xyz\n  fit: datums\n"),
                  "workpiece.fit: datums needs workpiece.datums");
-    expect_error(f.write("job.yaml", head + datums + "  fit: best\n"),
+    expect_job_error(f.write("job.yaml", head + datums + "  fit: best\n"),
                  "workpiece.fit: expected simultaneous or datums, found 'best'");
-    expect_error(
+    expect_job_error(
         f.write("job.yaml", head + "  datums: [{name: A, surfaces: a.obj}, {name: B, surfaces: b.obj}]\n"),
         "workpiece.datums: expected 3 datums (primary, secondary, tertiary), found 2 items");
-    expect_error(
+    expect_job_error(
         f.write("job.yaml", head + "  datums: [{name: A, surfaces: a.obj}, {name: A, surfaces: b.obj}, "
                                    "{name: C, surfaces: a.obj}]\n"),
         "workpiece.datums[1].name: datum name 'A' is already used by workpiece.datums[0]");
-    expect_error(
+    expect_job_error(
         f.write("job.yaml", head + "  datums: [{name: A, surfaces: a.obj}, {name: B, surface: b.obj}, "
                                    "{name: C, surfaces: a.obj}]\n"),
         "workpiece.datums[1].surface: unknown field");
-    expect_error(f.write("job.yaml", head + "  final_part: a.obj\n"),
+    expect_job_error(f.write("job.yaml", head + "  final_part: a.obj\n"),
                  "workpiece.reference_surfaces: missing");
     try {
         io::load_job(f.write("job.yaml",
@@ -495,7 +464,7 @@ TEST(DatumJob, FieldsDefaultsAndErrors) {
 
 TEST(DatumJob, RunLocatesByTheDatumsAndReportsEach) {
     open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
-    Folder f;
+    TempFolder f("partloc_test_datums");
     sim::SimulatedJob sj = sim::simulate_random_cell(12);
     sj.job.workpiece.datums = datums_of(sj);
     sj.job.workpiece.fit = WorkpieceFitMode::Datums;

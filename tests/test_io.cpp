@@ -16,11 +16,13 @@
 
 #include "partloc/core/geometry.hpp"
 #include "partloc/io/cloud_io.hpp"
+#include "test_util.hpp"
 #include "partloc/io/job_io.hpp"
 #include "partloc/io/report_html.hpp"
 #include "partloc/io/result_io.hpp"
 
 using namespace partloc;
+using namespace partloc::test;
 using namespace partloc::io;
 namespace fs = std::filesystem;
 
@@ -28,18 +30,7 @@ namespace {
 
 fs::path data(const std::string& rel) { return fs::path(PARTLOC_DATA_DIR) / rel; }
 
-std::string slurp(const fs::path& p) {
-    std::ifstream in(p, std::ios::binary);
-    std::ostringstream s;
-    s << in.rdbuf();
-    return s.str();
-}
 
-void spit(const fs::path& p, const std::string& bytes) {
-    fs::create_directories(p.parent_path());
-    std::ofstream out(p, std::ios::binary);
-    out << bytes;
-}
 
 /// The count a file's own header gives after `keyword` ("element vertex", "element face", "POINTS"), read
 /// here independently of the readers under test.

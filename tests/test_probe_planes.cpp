@@ -17,8 +17,10 @@
 #include "partloc/io/job_io.hpp"
 #include "partloc/io/result_io.hpp"
 #include "partloc/sim/shapes.hpp"
+#include "test_util.hpp"
 
 using namespace partloc;
+using namespace partloc::test;
 namespace fs = std::filesystem;
 
 namespace {
@@ -186,24 +188,11 @@ TEST(ProbePlanes, BadProbingIsAReasonNamingThePlane) {
 
 namespace {
 
-struct Folder {
-    fs::path dir;
-    Folder() {
-        static std::atomic<int> n{0};
-        dir = fs::temp_directory_path() /
-              ("partloc_test_probe_" + std::to_string(::getpid()) + "_" + std::to_string(n++));
-        fs::remove_all(dir);
-        fs::create_directories(dir);
+// A temporary folder holding a model and a scan, for the jobs these tests write.
+struct Folder : TempFolder {
+    Folder() : TempFolder("partloc_test_probe") {
         write("model.xyz", "0 0 0\n10 0 0\n0 10 0\n0 0 10\n");
         write("scan.xyz", "0 0 0\n1 0 0\n0 1 0\n");
-    }
-    ~Folder() {
-        std::error_code ec;
-        fs::remove_all(dir, ec);
-    }
-    fs::path write(const std::string& name, const std::string& text) const {
-        std::ofstream(dir / name) << text;
-        return dir / name;
     }
 };
 
@@ -237,16 +226,6 @@ std::string job_text(const std::string& units, const std::string& pose_a, const 
            datum + "\nscans: [scan.xyz]\n";
 }
 
-void expect_error(const fs::path& job, const std::string& phrase) {
-    try {
-        io::load_job(job);
-        ADD_FAILURE() << "no error; expected '" << phrase << "'";
-    } catch (const io::InputError& e) {
-        EXPECT_EQ(e.file(), job.string());
-        EXPECT_NE(std::string(e.what()).find(phrase), std::string::npos) << e.what();
-        EXPECT_EQ(std::string(e.what()).find('\n'), std::string::npos) << e.what();
-    }
-}
 
 }  // namespace
 
@@ -314,25 +293,25 @@ TEST(ProbePlanesJob, BadProbingIsOneLineNamingTheField) {
     const std::string datum = "{origin: [0, 0, 0]}";
     Planes p = good;
     p[1].resize(2);
-    expect_error(f.write("job.yaml", job_text("mm", yaml_planes(p), datum)),
+    expect_job_error(f.write("job.yaml", job_text("mm", yaml_planes(p), datum)),
                  "fiducials[0].pose.probe_planes[1]: needs at least 3 points, found 2 (line 3)");
     p = good;
     std::swap(p[0], p[2]);
-    expect_error(f.write("job.yaml", job_text("mm", yaml_planes(p), datum)),
+    expect_job_error(f.write("job.yaml", job_text("mm", yaml_planes(p), datum)),
                  "fiducials[0].pose.probe_planes: the planes, in this order, make a left-handed frame");
     p = good;
     p[2][4] += Eigen::Vector3d(0, 0, 5);
-    expect_error(f.write("job.yaml", job_text("mm", datum, yaml_planes(p))),
+    expect_job_error(f.write("job.yaml", job_text("mm", datum, yaml_planes(p))),
                  "workpiece.datum.probe_planes[2]: the points are not on one plane");
-    expect_error(
+    expect_job_error(
         f.write("job.yaml", job_text("mm", "{probe_planes: [[[0, 0, 0], [1, 0, 0], [0, 1, 0]]]}", datum)),
         "fiducials[0].pose.probe_planes: expected 3 lists of probed points");
-    expect_error(f.write("job.yaml", job_text("mm", "{probe_planes: [[[0, 0]], [], []]}", datum)),
+    expect_job_error(f.write("job.yaml", job_text("mm", "{probe_planes: [[[0, 0]], [], []]}", datum)),
                  "fiducials[0].pose.probe_planes[0][0]: expected 3 numbers, found 2 items");
-    expect_error(
+    expect_job_error(
         f.write("job.yaml", job_text("mm", "{probe_planes: [[], [], []], origin: [0, 0, 0]}", datum)),
         "fiducials[0].pose.origin: unknown field (known here: probe_planes)");
-    expect_error(
+    expect_job_error(
         f.write("job.yaml", job_text("mm", "{orign: [0, 0, 0]}", datum)),
         "fiducials[0].pose.orign: unknown field (known here: origin, euler_xyz_deg, matrix, probe_planes)");
 
