@@ -24,17 +24,26 @@ sim::SimulatedJob make_cell(const CellSpec& spec) {
     return sim::simulate_random_cell(spec.seed, o);
 }
 
+bool registered_right(const Eigen::Isometry3d& T_machine_scan, const sim::SimulatedJob& cell, std::size_t scan) {
+    const Eigen::Vector3d at = cell.truth.T_machine_workpiece.translation();
+    const Eigen::Isometry3d D = T_machine_scan * cell.truth.scans[scan].T_machine_scan.inverse();
+    return (D * at - at).norm() < 0.5 && rotation_angle_deg(D.linear()) < 0.2;
+}
+
+bool fiducial_in_view(const sim::SimulatedJob& cell, std::size_t scan) {
+    std::size_t seen = 0;
+    for (const auto& [name, n] : cell.truth.scans[scan].fiducial_points) seen = std::max(seen, n);
+    return seen >= kSeenPoints;
+}
+
 Verdict judge(const MethodOutcome& outcome, const sim::SimulatedJob& cell) {
     Verdict v;
-    const Eigen::Vector3d at = cell.truth.T_machine_workpiece.translation();
     for (std::size_t i = 0; i < outcome.T_machine_scan.size() && i < cell.truth.scans.size(); ++i) {
         if (!outcome.T_machine_scan[i]) {
             ++v.rejected;
             continue;
         }
-        const Eigen::Isometry3d D = *outcome.T_machine_scan[i] * cell.truth.scans[i].T_machine_scan.inverse();
-        const bool ok = (D * at - at).norm() < 0.5 && rotation_angle_deg(D.linear()) < 0.2;
-        (ok ? v.right : v.wrong) += 1;
+        (registered_right(*outcome.T_machine_scan[i], cell, i) ? v.right : v.wrong) += 1;
     }
     if (outcome.located) {
         v.located = true;

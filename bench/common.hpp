@@ -43,6 +43,14 @@ struct Verdict {
 };
 Verdict judge(const MethodOutcome& outcome, const sim::SimulatedJob& cell);
 
+/// A scan is registered right when its T_machine_scan moves the true workpiece origin less than 0.5 mm and
+/// turns it less than 0.2 degrees from the truth.
+bool registered_right(const Eigen::Isometry3d& T_machine_scan, const sim::SimulatedJob& cell, std::size_t scan);
+
+/// A scan "sees a fiducial" when one fiducial got at least this many true returns in it.
+constexpr std::size_t kSeenPoints = 4000;
+bool fiducial_in_view(const sim::SimulatedJob& cell, std::size_t scan);
+
 // fiducial_at and workpiece_region: pipeline/job.hpp, shared with `run`.
 
 /// Maps the points of a scan taken at its axis values to the machine frame with the workpiece's axes at 0.

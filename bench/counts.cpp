@@ -10,12 +10,13 @@
 #include "partloc/pipeline/run.hpp"
 #include "partloc/sim/scenario.hpp"
 
+#include "common.hpp"
+
 namespace partloc::bench {
 
 int counts_main(int argc, char** argv) {
     const std::uint64_t first = argc > 1 ? std::strtoull(argv[1], nullptr, 10) : 100;
     const int cells = argc > 2 ? std::atoi(argv[2]) : 10;
-    constexpr std::size_t kSeen = 4000;  // a fiducial with this many true returns is "in view"
     int right = 0, wrong = 0, missed = 0, none_in_view = 0, located = 0;
     double worst_origin = 0, worst_rotation = 0, sum_origin = 0, seconds = 0;
     std::printf("seed  registered  wrong  missed  origin_mm  rotation_deg  run_s\n");
@@ -36,17 +37,11 @@ int counts_main(int argc, char** argv) {
         seconds += s;
         int reg = 0, wr = 0, mi = 0;
         for (std::size_t i = 0; i < r.scans.size(); ++i) {
-            const auto& t = sj.truth.scans[i];
-            std::size_t seen = 0;
-            for (const auto& [name, n] : t.fiducial_points) seen = std::max(seen, n);
             if (!r.scans[i].registered) {
-                (seen >= kSeen ? mi : none_in_view) += 1;
+                (fiducial_in_view(sj, i) ? mi : none_in_view) += 1;
                 continue;
             }
-            const Eigen::Vector3d at = sj.truth.T_machine_workpiece.translation();
-            const Eigen::Isometry3d D = r.scans[i].T_machine_scan * t.T_machine_scan.inverse();
-            const bool ok = (D * at - at).norm() < 0.5 && rotation_angle_deg(D.linear()) < 0.2;
-            (ok ? reg : wr) += 1;
+            (registered_right(r.scans[i].T_machine_scan, sj, i) ? reg : wr) += 1;
         }
         right += reg;
         wrong += wr;

@@ -27,6 +27,7 @@
 #include "partloc/core/icp.hpp"
 #include "partloc/pipeline/run.hpp"
 #include "partloc/sim/scenario.hpp"
+#include "common.hpp"
 
 using namespace partloc;
 
@@ -36,13 +37,7 @@ struct Counts {
     int right = 0, wrong = 0, missed = 0, none_in_view = 0, traps = 0, traps_wrong = 0;
 };
 
-bool registered_right(const Eigen::Isometry3d& found, const Eigen::Isometry3d& truth, const Eigen::Vector3d& at) {
-    const Eigen::Isometry3d D = found * truth.inverse();
-    return (D * at - at).norm() < 0.5 && rotation_angle_deg(D.linear()) < 0.2;
-}
-
 void count_scans(const sim::SimulatedJob& sj, const JobResult& r, std::size_t real_scans, Counts& c) {
-    const Eigen::Vector3d at = sj.truth.T_machine_workpiece.translation();
     for (std::size_t i = 0; i < r.scans.size(); ++i) {
         if (i >= real_scans) {  // a trap: there is nothing to register it by
             ++c.traps;
@@ -52,13 +47,11 @@ void count_scans(const sim::SimulatedJob& sj, const JobResult& r, std::size_t re
             }
             continue;
         }
-        std::size_t seen = 0;
-        for (const auto& [name, n] : sj.truth.scans[i].fiducial_points) seen = std::max(seen, n);
         if (!r.scans[i].registered) {
-            (seen >= 4000 ? c.missed : c.none_in_view) += 1;
+            (bench::fiducial_in_view(sj, i) ? c.missed : c.none_in_view) += 1;
             continue;
         }
-        if (registered_right(r.scans[i].T_machine_scan, sj.truth.scans[i].T_machine_scan, at)) {
+        if (bench::registered_right(r.scans[i].T_machine_scan, sj, i)) {
             ++c.right;
         } else {
             ++c.wrong;
