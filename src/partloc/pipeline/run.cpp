@@ -44,6 +44,17 @@ struct ScanWork {
     std::shared_ptr<open3d::geometry::PointCloud> workpiece_points;  ///< machine frame, axes 0, with normals
 };
 
+/// Takes back a scan's registration: rejected, with the reason (its fits stay, for the report).
+void unregister(ScanResult& r, std::string message) {
+    r.registered = false;
+    r.fiducials.clear();
+    r.T_machine_scan = Eigen::Isometry3d::Identity();
+    r.information = Matrix6d::Zero();
+    r.score = r.rmse = 0.0;
+    r.warnings.clear();
+    r.message = std::move(message);
+}
+
 /// The scans registered by one fiducial alone that the part does not confirm: a look-alike of that
 /// fiducial, or that fiducial moved, placed them. The part is fitted again on each such scan's points alone,
 /// from the part located from all scans. Fewer than min_inliers of its points on the reference surfaces
@@ -93,14 +104,9 @@ bool reject_inconsistent_scans(const std::vector<ScanWork>& work, const Workpiec
             if (moved <= 5.0 * wfs.noise) continue;
             why = fmt("the part it shows lies %.3g off the part the scans locate", moved);
         }
-        r.message = "only " + r.fiducials.front() + "'s fit places this scan, and " + why + ": " +
-                    r.fiducials.front() + " moved, or a shape like it elsewhere placed the scan";
-        r.registered = false;
-        r.fiducials.clear();
-        r.T_machine_scan = Eigen::Isometry3d::Identity();
-        r.information = Matrix6d::Zero();
-        r.score = r.rmse = 0.0;
-        r.warnings.clear();
+        const std::string name = r.fiducials.front();
+        unregister(r, "only " + name + "'s fit places this scan, and " + why + ": " + name +
+                          " moved, or a shape like it elsewhere placed the scan");
         any = true;
     }
     return any;
@@ -448,16 +454,10 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
             // a look-alike of that fiducial (measured: a scan with every fiducial point removed was
             // registered 222 mm off by a support block shaped like one), or a scan that misses the part,
             // which the part's fit could not use anyway.
-            r.registered = false;
-            r.fiducials.clear();
-            r.T_machine_scan = Eigen::Isometry3d::Identity();
-            r.information = Matrix6d::Zero();
-            r.score = r.rmse = 0.0;
-            r.warnings.clear();
-            r.message = "only " + job.fiducials[top->source_k].name +
-                        "'s fit places this scan, and it puts nothing of the scan in the workpiece's region: " +
-                        job.fiducials[top->source_k].name +
-                        " moved, or a shape like it elsewhere placed the scan, or the scan misses the part";
+            const std::string& name = job.fiducials[top->source_k].name;
+            unregister(r, "only " + name + "'s fit places this scan, and it puts nothing of the scan in the "
+                           "workpiece's region: " + name +
+                           " moved, or a shape like it elsewhere placed the scan, or the scan misses the part");
             wp->points_.clear();
         } else {
             wp->points_.clear();
