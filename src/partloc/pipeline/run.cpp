@@ -57,18 +57,21 @@ void unregister(ScanResult& r, std::string message) {
 
 /// The scans registered by one fiducial alone that the part does not confirm: a look-alike of that
 /// fiducial, or that fiducial moved, placed them. The part is fitted again on each such scan's points alone,
-/// from the part located from all scans. Fewer than min_inliers of its points on the reference surfaces
-/// rejects the scan (unconfirmed), and so does an own fit that moves its points along the surfaces' normals
-/// by more than five times the noise (RMS over the points on the surfaces; directions the scan leaves free
-/// move no point along a normal and do not count, and do not bias the merged fit either). Such scans are
-/// marked not registered, with the reason; returns whether any was. Needs two registered scans.
+/// from the part located from all scans (from nominal when the merged fit failed). Fewer than min_inliers of
+/// its points on the reference surfaces rejects the scan (unconfirmed), and, where two or more registered
+/// scans located the part, so does an own fit that moves its points along the surfaces' normals by more than
+/// five times the noise (RMS over the points on the surfaces; directions the scan leaves free move no point
+/// along a normal and do not count, and do not bias the merged fit either). Such scans are marked not
+/// registered, with the reason; returns whether any was. A lone scan that the merged fit located the part
+/// from by itself is confirmed by that fit.
 bool reject_inconsistent_scans(const std::vector<ScanWork>& work, const WorkpieceFit& fit,
                                const Surface& reference, const WorkpieceFitSettings& wfs,
                                std::vector<ScanResult>& scans) {
     std::size_t registered = 0;
     for (const auto& r : scans) registered += r.registered;
-    if (registered < 2) return false;
-    const Eigen::Isometry3d T_nominal_machine = fit.T_correction.inverse();
+    if (registered == 0 || (registered == 1 && fit.ok)) return false;
+    const bool located = fit.ok;  // by two scans or more
+    const Eigen::Isometry3d T_nominal_machine = located ? fit.T_correction.inverse() : Eigen::Isometry3d::Identity();
     bool any = false;
     for (std::size_t i = 0; i < scans.size(); ++i) {
         ScanResult& r = scans[i];
@@ -88,7 +91,7 @@ bool reject_inconsistent_scans(const std::vector<ScanWork>& work, const Workpiec
                       "reference surfaces (needs %.0f)",
                       static_cast<double>(own.inliers), static_cast<double>(pts.size()),
                       static_cast<double>(wfs.min_inliers));
-        } else {
+        } else if (located) {
             double sum = 0.0;
             std::size_t on = 0;
             for (const auto& p : pts) {
@@ -103,6 +106,8 @@ bool reject_inconsistent_scans(const std::vector<ScanWork>& work, const Workpiec
             const double moved = on ? std::sqrt(sum / on) : 0.0;
             if (moved <= 5.0 * wfs.noise) continue;
             why = fmt("the part it shows lies %.3g off the part the scans locate", moved);
+        } else {
+            continue;
         }
         const std::string name = r.fiducials.front();
         unregister(r, "only " + name + "'s fit places this scan, and " + why + ": " + name +
@@ -525,8 +530,16 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
                                               merged->HasNormals() ? &merged->normals_ : nullptr);
     // A scan that one fiducial's fit alone placed, whose part points do not lie on the part that the other
     // scans locate, was placed by a look-alike of that fiducial: it is left out and the part fitted again.
-    if (fit.ok && reject_inconsistent_scans(work, fit, reference, wfs, result.scans)) {
+    // Where the part was not found at all, such a scan is not trusted either (measured: a mirrored model,
+    // the only fiducial fit that passed in its scan, placed it 143 mm and 180 degrees off; no point of it
+    // lay on the part).
+    if (reject_inconsistent_scans(work, fit, reference, wfs, result.scans)) {
         merge_registered();
+        if (registered == 0) {
+            w.message = "no scan could be registered to the machine: the part confirms none of them";
+            result.seconds = seconds_since(t0);
+            return result;
+        }
         fit = fit_reference_surfaces(merged->points_, reference, wfs,
                                      merged->HasNormals() ? &merged->normals_ : nullptr);
     }
