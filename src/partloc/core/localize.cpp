@@ -324,6 +324,22 @@ ScanPoseFit fit_scan_pose(const PreparedScan& scan, const std::vector<const Prep
     out.ok = true;
     out.T_machine_scan = icp.T_target_source;
     out.JtJ = icp.JtJ;
+    // Each fiducial's share, on its own points at the result (the same distance as the last stage).
+    std::size_t first = 0;
+    for (std::size_t g = 0; g < models.size(); ++g) {
+        Matrix6d H = Matrix6d::Zero();
+        for (std::size_t i = first; i < first + out.points[g]; ++i) {
+            const Eigen::Vector3d p = out.T_machine_scan * source[i];
+            double d2 = 0.0;
+            const int k = all.nearest(p, &d2, inlier);
+            if (k < 0) continue;
+            Vector6d J;
+            J << p.cross(all.normals[k]), all.normals[k];
+            H += J * J.transpose();
+        }
+        out.JtJ_models.push_back(H);
+        first += out.points[g];
+    }
     out.rmse = icp.rmse;
     out.inliers = icp.inliers;
     return out;

@@ -111,6 +111,9 @@ struct ScanPoseFit {
     double rmse = 0.0;
     std::size_t inliers = 0;
     std::vector<std::size_t> points;  ///< scan points taken near each fiducial's surface, in the models' order
+    /// Each model's share of JtJ (the same frame and twist), in the models' order: how much each fiducial
+    /// holds each direction of the fit, to carry a fiducial's probing error into the scan's pose.
+    std::vector<Matrix6d> JtJ_models;
 };
 
 /// Point-to-plane fit of the scan to all `models` at their machine poses `T_machine_model` (at the scan's

@@ -26,6 +26,9 @@ struct ScanResult {
     std::vector<std::string> warnings;  ///< registered, but something a person should know (a fiducial left out)
     /// Information of T_machine_scan (twist [w, v] in the machine frame) from the joint fit: JtJ / noise^2.
     Matrix6d information = Matrix6d::Zero();
+    /// Each fiducial's share of the joint fit's JtJ (same frame and twist), in `fiducials`' order; empty when
+    /// the scan was placed by one fiducial's fit without the joint one.
+    std::vector<Matrix6d> fiducial_jtj;
     std::size_t points = 0;          ///< valid points in the scan
     double point_spacing = 0.0;      ///< used for this scan (given or estimated), job units
     double noise = 0.0;              ///< used for this scan (given or estimated), job units

@@ -50,6 +50,7 @@ void unregister(ScanResult& r, std::string message) {
     r.fiducials.clear();
     r.T_machine_scan = Eigen::Isometry3d::Identity();
     r.information = Matrix6d::Zero();
+    r.fiducial_jtj.clear();
     r.score = r.rmse = 0.0;
     r.warnings.clear();
     r.message = std::move(message);
@@ -437,7 +438,10 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         r.T_machine_scan = T_machine_scan;
         r.score = top->source->score;
         r.rmse = joint.ok ? joint.rmse : top->source->rmse;
-        if (joint.ok) r.information = joint.JtJ / std::max(noise * noise, 1e-30);
+        if (joint.ok) {
+            r.information = joint.JtJ / std::max(noise * noise, 1e-30);
+            r.fiducial_jtj = joint.JtJ_models;
+        }
         for (auto& f : r.fits)
             if (f.fiducial == top->source->fiducial) f = *top->source;
 
@@ -588,6 +592,10 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
             w.datums = evaluate_datums(merged->points_, datums, fit.T_correction, ds);
         }
     }
+    // The merged points scatter less about the fitted surfaces than one scan's points do: the merge averages
+    // the overlapping scans' points in each voxel (measured: 0.083 against the scanner's 0.13 mm, seed 1080).
+    // The information is that of the points the fit used, so it takes their scatter.
+    if (w.rmse > 0 && w.rmse < wfs.noise) w.information *= (wfs.noise * wfs.noise) / (w.rmse * w.rmse);
     w.located = true;
     w.T_machine_workpiece = T_correction * job.workpiece.T_machine_workpiece;
     result.located = true;
@@ -601,6 +609,14 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
                 for (std::size_t k = 0; k < job.fiducials.size(); ++k)
                     if (job.fiducials[k].name == name) used.push_back(k);
             ui.scan_fiducials.push_back(used);
+            const AxisValues& q = job.scans[i].axes;
+            std::vector<Eigen::Isometry3d> moved;
+            for (std::size_t k : used)
+                moved.push_back(job.machine.motion(job.fiducials[k].moves_with, q) *
+                                job.machine.motion(job.fiducials[k].moves_with, job.fiducials[k].probed_at).inverse());
+            ui.scan_fiducial_motion.push_back(moved);
+            ui.scan_fiducial_jtj.push_back(result.scans[i].fiducial_jtj);
+            ui.scan_to_axes0.push_back(job.machine.motion(job.workpiece.moves_with, q).inverse());
         }
         ui.reference = &reference;
         ui.T_correction = T_correction;

@@ -28,6 +28,15 @@ struct UncertaintyInputs {
     std::vector<std::shared_ptr<const open3d::geometry::PointCloud>> scan_points;
     /// For each of those scans: the fiducials that registered it (indices into job.fiducials).
     std::vector<std::vector<std::size_t>> scan_fiducials;
+    /// For each scan, in scan_fiducials' order: each fiducial's share of the scan fit's JtJ (machine frame at
+    /// the scan's axes, twist [w, v]). Empty for a scan: its fiducials share its pose error evenly.
+    std::vector<std::vector<Matrix6d>> scan_fiducial_jtj;
+    /// For each scan, in scan_fiducials' order: the fiducial's motion from where it was probed to where it was
+    /// at the scan (machine frame; identity for a fiducial that does not move).
+    std::vector<std::vector<Eigen::Isometry3d>> scan_fiducial_motion;
+    /// For each scan: machine frame at the scan's axes to the machine frame at axes 0, where the workpiece is
+    /// located (the workpiece's motion undone).
+    std::vector<Eigen::Isometry3d> scan_to_axes0;
     const Surface* reference = nullptr;                  ///< nominal reference surfaces
     Eigen::Isometry3d T_correction = Eigen::Isometry3d::Identity();  ///< the fit: located = T_correction * nominal
     double fit_distance = 0.0;   ///< the fit's last correspondence distance
