@@ -168,12 +168,12 @@ int main(int argc, char** argv) {
             // The 1-sigma parts the half-widths come from, to calibrate how they combine.
             const auto& u = r.workpiece.uncertainty;
             std::printf("      sigma scans %.4f %.4f %.4f %.4f %.4f %.4f probing %.4f %.4f %.4f %.4f %.4f %.4f noise %.4f "
-                        "%.4f %.4f %.4f %.4f %.4f jackknife %d\n",
+                        "%.4f %.4f %.4f %.4f %.4f jackknife %d rmse %.4f points %zu inliers %zu\n",
                         u.origin_scans.x(), u.origin_scans.y(), u.origin_scans.z(), u.euler_scans.x(), u.euler_scans.y(),
                         u.euler_scans.z(), u.origin_probing.x(), u.origin_probing.y(), u.origin_probing.z(),
                         u.euler_probing.x(), u.euler_probing.y(), u.euler_probing.z(), u.origin_noise.x(),
                         u.origin_noise.y(), u.origin_noise.z(), u.euler_noise.x(), u.euler_noise.y(), u.euler_noise.z(),
-                        u.scans);
+                        u.scans, r.workpiece.rmse, r.workpiece.points, r.workpiece.inliers);
         }
         // A shape close to a fiducial's mirror image: fiducial A's model mirrored.
         if (seed % 5 == 0) {
