@@ -47,6 +47,8 @@ RULES = {
     "1.96*(max(scans, noise) + probing)": lambda t, a: 1.96 * math.sqrt(
         max(t["scans"][a], t["noise"][a]) ** 2 + t["probing"][a] ** 2),
     "t(m-1)*(scans + probing)": lambda t, a: t95(t["m"] - 1) * math.sqrt(t["scans"][a] ** 2 + t["probing"][a] ** 2),
+    "t(m-1)*max(scans, noise) + 1.96*probing": lambda t, a: math.sqrt(
+        (t95(t["m"] - 1) * max(t["scans"][a], t["noise"][a])) ** 2 + (1.96 * t["probing"][a]) ** 2),
 }
 
 NAMES = ["x", "y", "z", "a", "b", "c"]

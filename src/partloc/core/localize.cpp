@@ -1,5 +1,7 @@
 #include "partloc/core/localize.hpp"
 
+#include <optional>
+
 #include <open3d/geometry/KDTreeSearchParam.h>
 
 #include <algorithm>
@@ -281,28 +283,38 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
     return fits;
 }
 
-ScanPoseFit fit_scan_pose(const PreparedScan& scan, const std::vector<const PreparedModel*>& models,
-                          const std::vector<Eigen::Isometry3d>& T_machine_model, const Eigen::Isometry3d& init,
-                          const LocalizeSettings& st, double start_distance) {
-    ScanPoseFit out;
-    out.T_machine_scan = init;
-    if (models.empty() || models.size() != T_machine_model.size()) return out;
-    // Every fiducial's samples in the machine frame make one surface; the points near each (at the first
-    // guess) are the source. One least-squares fit then weighs each fiducial by what the scan saw of it.
+Surface make_pose_target(const std::vector<const PreparedModel*>& models,
+                         const std::vector<Eigen::Isometry3d>& T_machine_model) {
     auto cloud = std::make_shared<open3d::geometry::PointCloud>();
-    std::vector<Eigen::Vector3d> source, source_normals;
-    double spacing = std::numeric_limits<double>::infinity(), inlier = 0.0, start = 0.0;
-    for (std::size_t g = 0; g < models.size(); ++g) {
+    double spacing = std::numeric_limits<double>::infinity();
+    for (std::size_t g = 0; g < models.size() && g < T_machine_model.size(); ++g) {
         const PreparedModel& m = *models[g];
-        const Thresholds t = thresholds(scan, m);
         spacing = std::min(spacing, m.dense.spacing);
-        inlier = std::max(inlier, t.vs.inlier_distance);
-        start = std::max(start, std::max(t.vs.inlier_distance, 0.25 * m.sampling));
         const Eigen::Isometry3d& F = T_machine_model[g];
         for (std::size_t i = 0; i < m.dense.points.size(); ++i) {
             cloud->points_.push_back(F * m.dense.points[i]);
             cloud->normals_.push_back(F.linear() * m.dense.normals[i]);
         }
+    }
+    return make_surface(cloud, spacing);
+}
+
+ScanPoseFit fit_scan_pose(const PreparedScan& scan, const std::vector<const PreparedModel*>& models,
+                          const std::vector<Eigen::Isometry3d>& T_machine_model, const Eigen::Isometry3d& init,
+                          const LocalizeSettings& st, double start_distance, const Surface* target) {
+    ScanPoseFit out;
+    out.T_machine_scan = init;
+    if (models.empty() || models.size() != T_machine_model.size()) return out;
+    // Every fiducial's samples in the machine frame make one surface; the points near each (at the first
+    // guess) are the source. One least-squares fit then weighs each fiducial by what the scan saw of it.
+    std::vector<Eigen::Vector3d> source, source_normals;
+    double inlier = 0.0, start = 0.0;
+    for (std::size_t g = 0; g < models.size(); ++g) {
+        const PreparedModel& m = *models[g];
+        const Thresholds t = thresholds(scan, m);
+        inlier = std::max(inlier, t.vs.inlier_distance);
+        start = std::max(start, std::max(t.vs.inlier_distance, 0.25 * m.sampling));
+        const Eigen::Isometry3d& F = T_machine_model[g];
         const Eigen::Isometry3d T_scan_model = init.inverse() * F;
         const auto local = points_near(scan, T_scan_model * m.dense.center, m.dense.diameter / 2.0 + 2.0 * m.sampling);
         const auto near = points_near_surface(local, m.dense, T_scan_model.inverse(),
@@ -315,7 +327,9 @@ ScanPoseFit fit_scan_pose(const PreparedScan& scan, const std::vector<const Prep
         const auto nn = normals_of(near, scan.scale);
         source_normals.insert(source_normals.end(), nn.begin(), nn.end());
     }
-    const Surface all = make_surface(cloud, spacing);
+    std::optional<Surface> built;
+    if (!target) built.emplace(make_pose_target(models, T_machine_model));
+    const Surface& all = target ? *target : *built;
     IcpSettings is;
     is.max_distances = {start, inlier};
     if (start_distance > start) is.max_distances.insert(is.max_distances.begin(), start_distance);

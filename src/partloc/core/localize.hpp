@@ -116,12 +116,19 @@ struct ScanPoseFit {
     std::vector<Matrix6d> JtJ_models;
 };
 
+/// The fiducials' dense samples at their machine poses as one surface, the target of fit_scan_pose: the
+/// same for every start in a scan, so built once per scan and set of fiducials.
+Surface make_pose_target(const std::vector<const PreparedModel*>& models,
+                         const std::vector<Eigen::Isometry3d>& T_machine_model);
+
 /// Point-to-plane fit of the scan to all `models` at their machine poses `T_machine_model` (at the scan's
 /// axis values), from `init` (T_machine_scan, e.g. from one fiducial). `start_distance`: the first stage's
-/// correspondence distance (0: a quarter of the sampling, for a start that is already close).
+/// correspondence distance (0: a quarter of the sampling, for a start that is already close). `target`:
+/// make_pose_target(models, T_machine_model) where the caller keeps it; null builds it.
 ScanPoseFit fit_scan_pose(const PreparedScan& scan, const std::vector<const PreparedModel*>& models,
                           const std::vector<Eigen::Isometry3d>& T_machine_model, const Eigen::Isometry3d& init,
-                          const LocalizeSettings& settings, double start_distance = 0.0);
+                          const LocalizeSettings& settings, double start_distance = 0.0,
+                          const Surface* target = nullptr);
 
 /// Fits `model` to `scan`: global fit, fine fit of the best candidates, verification, decision; a second
 /// distinct pose with nearly the best support makes the answer ambiguous, and it is rejected.

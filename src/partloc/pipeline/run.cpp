@@ -245,6 +245,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
             return source_ok;
         };
         std::vector<Hypothesis> hyps;
+        std::optional<Surface> all_target;  // every fiducial at its pose: one target for all the starts
         for (std::size_t k = 0; k < models.size(); ++k)
             for (const auto& c : candidates[k]) {
                 if (!c.accepted) continue;
@@ -258,7 +259,9 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
                 // fiducial itself (another one, moved, pulled it away), it is judged where its source put it.
                 bool judged = false;
                 if (models.size() > 1) {
-                    const ScanPoseFit joint = fit_scan_pose(ps, all_models, all_poses, h.T_initial, ls, 0.5 * sampling);
+                    if (!all_target) all_target.emplace(make_pose_target(all_models, all_poses));
+                    const ScanPoseFit joint =
+                        fit_scan_pose(ps, all_models, all_poses, h.T_initial, ls, 0.5 * sampling, &*all_target);
                     if (joint.ok && pose_error(joint.T_machine_scan, h.T_initial).translation < sampling)
                         judged = judge_at(h, joint.T_machine_scan);
                 }
@@ -387,7 +390,8 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
                 ms.push_back(&models[k]);
                 poses.push_back(fiducial_at(job.machine, job.fiducials[k], scan.axes));
             }
-            return fit_scan_pose(ps, ms, poses, top->T_machine_scan, ls);
+            const bool all = ks.size() == models.size() && all_target;  // in_view keeps the models' order
+            return fit_scan_pose(ps, ms, poses, top->T_machine_scan, ls, 0.0, all ? &*all_target : nullptr);
         };
         ScanPoseFit joint = joint_fit(in_view);
         const double noise = work[i].scale.noise;
