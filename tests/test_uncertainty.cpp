@@ -1,0 +1,165 @@
+// The probing part of the uncertainty (pipeline/uncertainty), against answers worked by hand: a fiducial's
+// probing error carried through the scans it fixes into the located part.
+#include <gtest/gtest.h>
+#include <open3d/geometry/TriangleMesh.h>
+
+#include <cmath>
+
+#include "partloc/core/surface.hpp"
+#include "partloc/pipeline/uncertainty.hpp"
+
+using namespace partloc;
+
+namespace {
+
+// Three faces of a 40 mm corner at the origin (x = 0, y = 0, z = 0), as samples with normals.
+std::shared_ptr<open3d::geometry::PointCloud> corner(double step) {
+    auto c = std::make_shared<open3d::geometry::PointCloud>();
+    for (double u = 1.0; u < 40.0; u += step)
+        for (double v = 1.0; v < 40.0; v += step) {
+            c->points_.emplace_back(0.0, u, v);
+            c->normals_.emplace_back(1.0, 0.0, 0.0);
+            c->points_.emplace_back(u, 0.0, v);
+            c->normals_.emplace_back(0.0, 1.0, 0.0);
+            c->points_.emplace_back(u, v, 0.0);
+            c->normals_.emplace_back(0.0, 0.0, 1.0);
+        }
+    return c;
+}
+
+Fiducial block(const std::string& name, const Eigen::Vector3d& at, double sigma) {
+    Fiducial f;
+    f.name = name;
+    f.model.mesh = open3d::geometry::TriangleMesh::CreateBox(20.0, 20.0, 20.0);  // (0,0,0)-(20,20,20)
+    f.T_machine_fiducial = Eigen::Isometry3d::Identity();
+    f.T_machine_fiducial.translation() = at;
+    f.pose_sigma = sigma;
+    return f;
+}
+
+struct Case {
+    Job job;
+    Surface reference;
+    UncertaintyInputs in;
+    WorkpieceResult w;
+};
+
+// Three scans of the corner, the part located at the nominal (origin at the machine's origin).
+Case three_scans() {
+    Case c;
+    c.reference = make_surface(corner(1.0), 1.0);
+    for (int i = 0; i < 3; ++i) c.in.scan_points.push_back(corner(1.5 + 0.25 * i));
+    c.in.reference = &c.reference;
+    c.in.fit_distance = 0.5;
+    c.in.noise = 0.01;
+    c.w.located = true;
+    return c;
+}
+
+}  // namespace
+
+// Every scan fixed by one fiducial alone: its whole probing error moves every scan, and so the part, the
+// same way. At the part's origin that is sigma in translation plus the turn (sigma over half the block's
+// size) on the lever arm from the block's centre.
+TEST(ProbingUncertainty, OneFiducialFixingEveryScanMovesThePartByItsWholeError) {
+    Case c = three_scans();
+    const double sigma = 0.01;
+    c.job.fiducials.push_back(block("F", Eigen::Vector3d(100.0, 0.0, 0.0), sigma));
+    Matrix6d H = Matrix6d::Identity();
+    H(0, 1) = H(1, 0) = 0.3;  // any information: a scan fixed by one fiducial takes its error whole
+    for (int i = 0; i < 3; ++i) {
+        c.in.scan_fiducials.push_back({0});
+        c.in.scan_fiducial_jtj.push_back({H});
+    }
+    estimate_uncertainty(c.job, c.in, c.w);
+    const auto& u = c.w.uncertainty;
+    ASSERT_TRUE(u.available);
+    const Eigen::Vector3d arm = Eigen::Vector3d::Zero() - Eigen::Vector3d(110.0, 10.0, 10.0);  // to the centre
+    const double turn = sigma / (0.5 * std::sqrt(3.0) * 20.0);                                // radians
+    for (int a = 0; a < 3; ++a) {
+        const double lever2 = arm.squaredNorm() - arm(a) * arm(a);
+        EXPECT_NEAR(u.origin_probing(a), std::sqrt(sigma * sigma + turn * turn * lever2), 1e-9) << a;
+        EXPECT_NEAR(u.euler_probing(a), turn * 180.0 / M_PI, 1e-9) << a;
+    }
+    // No noise and no registration error: the part does not move when a scan is left out.
+    EXPECT_LT(u.origin_scans.norm(), 1e-6);
+    // The interval holds the probing: 1.96 sigma at least.
+    for (int a = 0; a < 3; ++a) EXPECT_GE(u.origin(a), 1.96 * u.origin_probing(a) - 1e-12);
+}
+
+// Every scan fixed by two fiducials that hold it equally: each fiducial's error moves the scans by half,
+// and the two errors are independent, so the part's probing variance is a quarter of each one's.
+TEST(ProbingUncertainty, TwoFiducialsHoldingEachScanEquallyShareItsError) {
+    Case one = three_scans(), two = three_scans();
+    const double sigma = 0.01;
+    one.job.fiducials.push_back(block("F", Eigen::Vector3d(100.0, 0.0, 0.0), sigma));
+    two.job.fiducials.push_back(block("F", Eigen::Vector3d(100.0, 0.0, 0.0), sigma));
+    two.job.fiducials.push_back(block("G", Eigen::Vector3d(-100.0, 50.0, 0.0), sigma));
+    const Matrix6d H = Matrix6d::Identity();
+    for (int i = 0; i < 3; ++i) {
+        one.in.scan_fiducials.push_back({0});
+        one.in.scan_fiducial_jtj.push_back({H});
+        two.in.scan_fiducials.push_back({0, 1});
+        two.in.scan_fiducial_jtj.push_back({H, H});
+    }
+    estimate_uncertainty(one.job, one.in, one.w);
+    // G alone, for its own share.
+    Case g = three_scans();
+    g.job.fiducials.push_back(block("G", Eigen::Vector3d(-100.0, 50.0, 0.0), sigma));
+    for (int i = 0; i < 3; ++i) {
+        g.in.scan_fiducials.push_back({0});
+        g.in.scan_fiducial_jtj.push_back({H});
+    }
+    estimate_uncertainty(g.job, g.in, g.w);
+    estimate_uncertainty(two.job, two.in, two.w);
+    ASSERT_TRUE(two.w.uncertainty.available);
+    for (int a = 0; a < 3; ++a) {
+        const double expect = 0.5 * std::hypot(one.w.uncertainty.origin_probing(a), g.w.uncertainty.origin_probing(a));
+        EXPECT_NEAR(two.w.uncertainty.origin_probing(a), expect, 1e-9) << a;
+    }
+}
+
+// Every scan fixed by two fiducials, F holding only its position and G only its turn (as a far-off small
+// block and a large one might): F's error moves the part only by the shift it makes at the machine's origin
+// (its translation, and its turn about its own centre seen from the origin), and G's only by its turn. An
+// even split of each scan's error (the rule before 1a57cfd) gives a quarter of each one's whole error.
+TEST(ProbingUncertainty, EachFiducialMovesThePartOnlyInTheDirectionsItHolds) {
+    Case c = three_scans();
+    const double sigma = 0.01;
+    const Eigen::Vector3d at_f(100.0, 0.0, 0.0), at_g(-100.0, 50.0, 0.0);
+    c.job.fiducials.push_back(block("F", at_f, sigma));
+    c.job.fiducials.push_back(block("G", at_g, sigma));
+    const double e = 1e-9;
+    Vector6d hf, hg;
+    hf << e, e, e, 1, 1, 1;
+    hg << 1, 1, 1, e, e, e;
+    for (int i = 0; i < 3; ++i) {
+        c.in.scan_fiducials.push_back({0, 1});
+        c.in.scan_fiducial_jtj.push_back({Matrix6d(hf.asDiagonal()), Matrix6d(hg.asDiagonal())});
+    }
+    estimate_uncertainty(c.job, c.in, c.w);
+    const auto& u = c.w.uncertainty;
+    ASSERT_TRUE(u.available);
+    const double turn = sigma / (0.5 * std::sqrt(3.0) * 20.0);
+    const Eigen::Vector3d centre_f = at_f + Eigen::Vector3d(10.0, 10.0, 10.0);
+    for (int a = 0; a < 3; ++a) {
+        // A turn w about F's centre c shifts the origin by c x w: per axis a, turn^2 (|c|^2 - c_a^2).
+        const double shift2 = centre_f.squaredNorm() - centre_f(a) * centre_f(a);
+        EXPECT_NEAR(u.origin_probing(a), std::sqrt(sigma * sigma + turn * turn * shift2), 1e-6) << a;
+        EXPECT_NEAR(u.euler_probing(a), turn * 180.0 / M_PI, 1e-6) << a;
+    }
+}
+
+// pose_sigma 0 means the fiducials' poses are exact: nothing from the probing.
+TEST(ProbingUncertainty, ExactFiducialsAddNothing) {
+    Case c = three_scans();
+    c.job.fiducials.push_back(block("F", Eigen::Vector3d(100.0, 0.0, 0.0), 0.0));
+    for (int i = 0; i < 3; ++i) {
+        c.in.scan_fiducials.push_back({0});
+        c.in.scan_fiducial_jtj.push_back({Matrix6d::Identity()});
+    }
+    estimate_uncertainty(c.job, c.in, c.w);
+    ASSERT_TRUE(c.w.uncertainty.available);
+    EXPECT_EQ(c.w.uncertainty.origin_probing.norm(), 0.0);
+    EXPECT_EQ(c.w.uncertainty.euler_probing.norm(), 0.0);
+}
