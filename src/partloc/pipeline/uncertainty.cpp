@@ -3,6 +3,8 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <tuple>
+#include <utility>
 
 #include "partloc/core/icp.hpp"
 
@@ -31,17 +33,29 @@ Eigen::Vector3d euler_difference(const Eigen::Vector3d& a, const Eigen::Vector3d
 }
 
 
+/// [v]x: [v]x w = v x w.
+Eigen::Matrix3d skew(const Eigen::Vector3d& v) {
+    Eigen::Matrix3d m;
+    m << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
+    return m;
+}
+
 /// The adjoint of a rigid motion on twists [w, v] about the origin: the same motion of space, seen after T.
 Matrix6d adjoint(const Eigen::Isometry3d& T) {
     const Eigen::Matrix3d R = T.linear();
-    const Eigen::Vector3d t = T.translation();
-    Eigen::Matrix3d tx;
-    tx << 0, -t.z(), t.y(), t.z(), 0, -t.x(), -t.y(), t.x(), 0;
     Matrix6d A = Matrix6d::Zero();
     A.topLeftCorner<3, 3>() = R;
-    A.bottomLeftCorner<3, 3>() = tx * R;
+    A.bottomLeftCorner<3, 3>() = skew(T.translation()) * R;
     A.bottomRightCorner<3, 3>() = R;
     return A;
+}
+
+/// 1-sigma of the shift at point p, per axis, and of the turn in degrees, from a twist covariance.
+std::pair<Eigen::Vector3d, Eigen::Vector3d> sigmas_at(const Eigen::Vector3d& p, const Matrix6d& cov) {
+    Eigen::Matrix<double, 3, 6> J;  // shift at p = v + w x p
+    J << -skew(p), Eigen::Matrix3d::Identity();
+    return {(J * cov * J.transpose()).diagonal().cwiseMax(0.0).cwiseSqrt(),
+            cov.topLeftCorner<3, 3>().diagonal().cwiseMax(0.0).cwiseSqrt() * 180.0 / M_PI};
 }
 
 }  // namespace
@@ -175,29 +189,14 @@ void estimate_uncertainty(const Job& job, const UncertaintyInputs& in, Workpiece
         const Matrix6d A = adjoint(about);
         cov_probing += M * A * var.asDiagonal() * A.transpose() * M.transpose();
     }
-    {
-        const Eigen::Vector3d& p = full.origin;
-        Eigen::Matrix3d px;
-        px << 0, -p.z(), p.y(), p.z(), 0, -p.x(), -p.y(), p.x(), 0;
-        Eigen::Matrix<double, 3, 6> J;
-        J << -px, Eigen::Matrix3d::Identity();
-        u.origin_probing = (J * cov_probing * J.transpose()).diagonal().cwiseMax(0.0).cwiseSqrt();
-        u.euler_probing = cov_probing.topLeftCorner<3, 3>().diagonal().cwiseMax(0.0).cwiseSqrt() * 180.0 / M_PI;
-    }
+    std::tie(u.origin_probing, u.euler_probing) = sigmas_at(full.origin, cov_probing);
 
     // The noise: the fit's information matrix.
     const Matrix6d& info = in.information;
     Eigen::SelfAdjointEigenSolver<Matrix6d> es(info);
     if (es.eigenvalues()(0) > 0) {
         const Matrix6d cov = es.eigenvectors() * es.eigenvalues().cwiseInverse().asDiagonal() * es.eigenvectors().transpose();
-        Eigen::Matrix<double, 3, 6> J;
-        const Eigen::Vector3d& p = full.origin;
-        Eigen::Matrix3d px;
-        px << 0, -p.z(), p.y(), p.z(), 0, -p.x(), -p.y(), p.x(), 0;
-        J << -px, Eigen::Matrix3d::Identity();
-        const Eigen::Matrix3d co = J * cov * J.transpose();
-        u.origin_noise = co.diagonal().cwiseMax(0.0).cwiseSqrt();
-        u.euler_noise = cov.topLeftCorner<3, 3>().diagonal().cwiseMax(0.0).cwiseSqrt() * 180.0 / M_PI;
+        std::tie(u.origin_noise, u.euler_noise) = sigmas_at(full.origin, cov);
     }
 
     const double t = t95(m - 1);
