@@ -38,7 +38,7 @@ def read(paths):
 
 
 RULES = {
-    # The rule in pipeline/uncertainty.cpp up to 97195da.
+    # The rule in pipeline/uncertainty.cpp up to bddd94c.
     "t(m-1)*scans + 1.96*(probing + noise)": lambda t, a: math.sqrt(
         (t95(t["m"] - 1) * t["scans"][a]) ** 2 + (1.96 * t["probing"][a]) ** 2 + (1.96 * t["noise"][a]) ** 2),
     "1.96*(scans + probing + noise)": lambda t, a: 1.96 * math.sqrt(
@@ -47,6 +47,9 @@ RULES = {
     "1.96*(max(scans, noise) + probing)": lambda t, a: 1.96 * math.sqrt(
         max(t["scans"][a], t["noise"][a]) ** 2 + t["probing"][a] ** 2),
     "t(m-1)*(scans + probing)": lambda t, a: t95(t["m"] - 1) * math.sqrt(t["scans"][a] ** 2 + t["probing"][a] ** 2),
+    # The rule in pipeline/uncertainty.cpp from then on.
+    "1.96*max(scans, noise + probing)": lambda t, a: 1.96 * max(
+        t["scans"][a], math.hypot(t["noise"][a], t["probing"][a])),
     "t(m-1)*max(scans, noise) + 1.96*probing": lambda t, a: math.sqrt(
         (t95(t["m"] - 1) * max(t["scans"][a], t["noise"][a])) ** 2 + (1.96 * t["probing"][a]) ** 2),
 }
@@ -65,6 +68,9 @@ def main():
                       ("noise (information)", "noise")]:
         rms = [math.sqrt(sum(t[key][a] ** 2 for t in trials) / n) for a in range(6)]
         print(f"  {name:<29}" + " ".join(f"{r:7.4f}" for r in rms))
+    # What the points' noise and the fiducials' probing allow together: the bound the error can reach.
+    rms = [math.sqrt(sum(t["noise"][a] ** 2 + t["probing"][a] ** 2 for t in trials) / n) for a in range(6)]
+    print(f"  {'bound: noise and probing':<29}" + " ".join(f"{r:7.4f}" for r in rms))
     print("coverage % per component, then RMS of error/sigma (sigma = u/1.96):")
     for name, rule in RULES.items():
         inside = [sum(abs(t["err"][a]) <= rule(t, a) for t in trials) / n * 100 for a in range(6)]

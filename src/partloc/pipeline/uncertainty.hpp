@@ -1,13 +1,15 @@
 #pragma once
 // How far the located workpiece may be from the truth (issue 4): half-widths of 95 % intervals of its origin
-// and Euler angles, from three sources that add:
+// and Euler angles: 1.96 times the larger of two estimates of the 1-sigma error, the first part below, and
+// the second and third in quadrature:
 //  - the scans: each registered scan brings its own registration error and its own noise and view. Fitting
 //    the part again with each scan left out (the jackknife over scans) measures how much the answer moves
 //    with them, bias included, which the fit's information matrix alone does not: edge effects and
 //    registration errors are not independent per point, so 1/sqrt(points) is far too optimistic;
 //  - the fiducials' probing (fiducials[].pose_sigma): an error in a fiducial's probed pose moves every scan
 //    it registers the same way, so it does not average out over scans;
-//  - the noise of the points, from the fit's information matrix (a floor, small in practice).
+//  - the noise of the points, from the fit's information matrix: the bound that the points' number and
+//    scatter set. With the probing, the error that noise and probing alone would leave.
 #include <Eigen/Geometry>
 #include <functional>
 #include <memory>
