@@ -21,7 +21,9 @@
 #include <cstdio>
 #include <cstdlib>
 #include <exception>
+#include <map>
 #include <random>
+#include <string>
 
 #include "partloc/core/geometry.hpp"
 #include "partloc/core/icp.hpp"
@@ -35,7 +37,21 @@ namespace {
 
 struct Counts {
     int right = 0, wrong = 0, missed = 0, none_in_view = 0, traps = 0, traps_wrong = 0;
+    std::map<std::string, int> missed_why;  ///< scans rejected with a fiducial in view, by the kind of reason
 };
+
+/// The kind of a rejection: its message up to the first colon ("ambiguous", "no fiducial fits", ...), with
+/// the fiducials' names in "fiducials A and B disagree" and "only A's fit places" left out.
+std::string kind_of(const std::string& message) {
+    std::string k = message.substr(0, message.find(':'));
+    if (k.rfind("fiducials ", 0) == 0) return "fiducials ... disagree";
+    if (k.rfind("only ", 0) == 0) {
+        if (message.find("does not confirm") != std::string::npos) return "only one fiducial: the part does not confirm it";
+        if (message.find("lies") != std::string::npos) return "only one fiducial: its part lies off the located one";
+        return "only one fiducial: nothing in the workpiece's region";
+    }
+    return k;
+}
 
 void count_scans(const sim::SimulatedJob& sj, const JobResult& r, std::size_t real_scans, Counts& c) {
     for (std::size_t i = 0; i < r.scans.size(); ++i) {
@@ -48,7 +64,12 @@ void count_scans(const sim::SimulatedJob& sj, const JobResult& r, std::size_t re
             continue;
         }
         if (!r.scans[i].registered) {
-            (bench::fiducial_in_view(sj, i) ? c.missed : c.none_in_view) += 1;
+            if (bench::fiducial_in_view(sj, i)) {
+                ++c.missed;
+                ++c.missed_why[kind_of(r.scans[i].message)];
+            } else {
+                ++c.none_in_view;
+            }
             continue;
         }
         if (bench::registered_right(r.scans[i].T_machine_scan, sj, i)) {
@@ -191,6 +212,7 @@ int main(int argc, char** argv) {
             c.right += mc.right;
             c.wrong += mc.wrong;
             c.missed += mc.missed;
+            for (const auto& [k, n] : mc.missed_why) c.missed_why[k] += n;
             c.none_in_view += mc.none_in_view;
         }
         std::fflush(stdout);
@@ -199,6 +221,7 @@ int main(int argc, char** argv) {
     std::printf("\n%d trials, %d scans (%d of them traps): %d registered right, %d registered WRONG, %d rejected with a "
                 "fiducial in view, %d rejected with none in view, traps registered: %d\n",
                 trials, scans, c.traps, c.right, c.wrong, c.missed, c.none_in_view, c.traps_wrong);
+    for (const auto& [k, n] : c.missed_why) std::printf("  rejected with a fiducial in view, %4d: %s\n", n, k.c_str());
     std::printf("located %d of %d; origin error mean %.4f mm, worst %.4f mm; rotation mean %.4f deg, worst %.4f deg; "
                 "%.1f s per job\n",
                 located, trials, located ? sum_o / located : 0.0, worst_o, located ? sum_r / located : 0.0, worst_r,
