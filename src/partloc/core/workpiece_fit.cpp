@@ -66,7 +66,7 @@ WorkpieceFit fit_reference_surfaces(const std::vector<Eigen::Vector3d>& merged, 
         Eigen::SelfAdjointEigenSolver<Matrix6d> es(N);
         fit.conditioning = std::max(0.0, es.eigenvalues()(0));
     }
-    char buf[200];
+    char buf[400];
     if (icp.inliers < st.min_inliers) {
         std::snprintf(buf, sizeof buf, "only %zu points lie on the reference surfaces (needs %zu)", icp.inliers,
                       st.min_inliers);
@@ -76,6 +76,16 @@ WorkpieceFit fit_reference_surfaces(const std::vector<Eigen::Vector3d>& merged, 
                       "the scans do not show enough of the reference surfaces to fix all six degrees of "
                       "freedom (conditioning %.4f, needs %.3f)",
                       fit.conditioning, st.min_conditioning);
+        fit.reason = buf;
+    } else if (st.noise > 0 && fit.rmse > st.max_rmse_noise * st.noise) {
+        // A coarse fit that slid into the wrong place keeps only the points that happen to lie near the
+        // surfaces there, scattered over the whole band (measured: seed 1150, 19.5 degrees off, RMS 0.19 mm
+        // against 0.08-0.10 for the right fits of 162 trials, scanner noise 0.13 mm).
+        std::snprintf(buf, sizeof buf,
+                      "the points on the reference surfaces scatter %.3g about them (RMS), more than %.3g times "
+                      "the noise (%.3g): the fit did not find the part (it may sit further from nominal than "
+                      "the fit reaches)",
+                      fit.rmse, st.max_rmse_noise, st.noise);
         fit.reason = buf;
     } else {
         fit.ok = true;

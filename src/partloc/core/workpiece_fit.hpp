@@ -15,6 +15,9 @@ struct WorkpieceFitSettings {
     double max_start_distance = 0.0;  ///< largest expected displacement from nominal (job units); 0: 10% of size
     std::size_t min_inliers = 200;
     double min_conditioning = 0.01;   ///< as in verification: all six degrees of freedom fixed
+    /// The points on the surfaces may scatter about them at most this many times the noise (RMS). The
+    /// scanner's noise is along its rays, so a right fit shows less than all of it along the normals.
+    double max_rmse_noise = 1.25;
 };
 
 struct WorkpieceFit {
