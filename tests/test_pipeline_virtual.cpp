@@ -99,20 +99,7 @@ TEST(PartFit, ThatSlidesIntoTheWrongPlaceIsNotALocatedPart) {
     sim::SimulatedJob sj = sim::simulate_random_cell(1150);
     // The fiducials' probed poses disturbed as in bench/trials (pose_sigma): with them only two scans
     // register, and the part's fit from nominal goes wrong.
-    std::mt19937_64 rng(1150 * 7919 + 17);
-    std::normal_distribution<double> g(0.0, 1.0);
-    for (auto& f : sj.job.fiducials) {
-        const double sigma = f.pose_sigma;
-        const auto box = f.model.mesh->GetAxisAlignedBoundingBox();
-        const double half = 0.5 * (box.max_bound_ - box.min_bound_).norm();
-        Vector6d xi;
-        xi << g(rng) * sigma / half, g(rng) * sigma / half, g(rng) * sigma / half, g(rng) * sigma, g(rng) * sigma,
-            g(rng) * sigma;
-        const Eigen::Vector3d centre = f.T_machine_fiducial * box.GetCenter();
-        Eigen::Isometry3d about = Eigen::Isometry3d::Identity();
-        about.translation() = centre;
-        f.T_machine_fiducial = about * twist_exp(xi) * about.inverse() * f.T_machine_fiducial;
-    }
+    sim::disturb_probing(sj.job, 1150);
     RunSettings rs;
     rs.build_stock = false;
     const JobResult result = run_job(sj.job, rs);

@@ -117,22 +117,7 @@ int main(int argc, char** argv) {
             std::printf("%4llu  skipped: %s\n", static_cast<unsigned long long>(seed), e.what());
             continue;
         }
-        // Probing as a person does it: each fiducial's pose off by its probing uncertainty.
-        std::mt19937_64 rng(seed * 7919 + 17);
-        std::normal_distribution<double> g(0.0, 1.0);
-        for (auto& f : sj.job.fiducials) {
-            const double sigma = f.pose_sigma;
-            const auto box = f.model.mesh->GetAxisAlignedBoundingBox();
-            const double half = 0.5 * (box.max_bound_ - box.min_bound_).norm();
-            Vector6d xi;
-            xi << g(rng) * sigma / half, g(rng) * sigma / half, g(rng) * sigma / half, g(rng) * sigma, g(rng) * sigma,
-                g(rng) * sigma;
-            // About the block's centre: the rotation does not also shift it.
-            const Eigen::Vector3d centre = f.T_machine_fiducial * box.GetCenter();
-            Eigen::Isometry3d about = Eigen::Isometry3d::Identity();
-            about.translation() = centre;
-            f.T_machine_fiducial = about * twist_exp(xi) * about.inverse() * f.T_machine_fiducial;
-        }
+        sim::disturb_probing(sj.job, seed);
         const std::size_t real_scans = sj.job.scans.size();
         if (seed % 2 == 0) {
             Scan none = sj.job.scans[0];

@@ -5,9 +5,11 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <random>
 #include <stdexcept>
 
 #include "partloc/core/geometry.hpp"
+#include "partloc/core/icp.hpp"
 #include "partloc/sim/random.hpp"
 
 namespace partloc::sim {
@@ -522,6 +524,24 @@ SimulatedJob simulate_random_cell(std::uint64_t seed, const ScenarioOptions& opt
     const Eigen::Vector3d de(p.uniform(-6, 6), p.uniform(-1, 1), p.uniform(-1, 1));
     d.T_true = pose_from_origin_euler(T_nominal.translation() + dt, de);
     return build(d, options, seed);
+}
+
+void disturb_probing(Job& job, std::uint64_t seed) {
+    std::mt19937_64 rng(seed * 7919 + 17);
+    std::normal_distribution<double> g(0.0, 1.0);
+    for (auto& f : job.fiducials) {
+        const double sigma = f.pose_sigma;
+        const auto box = f.model.mesh->GetAxisAlignedBoundingBox();
+        const double half = 0.5 * (box.max_bound_ - box.min_bound_).norm();
+        Vector6d xi;
+        xi << g(rng) * sigma / half, g(rng) * sigma / half, g(rng) * sigma / half, g(rng) * sigma, g(rng) * sigma,
+            g(rng) * sigma;
+        // About the block's centre: the rotation does not also shift it.
+        const Eigen::Vector3d centre = f.T_machine_fiducial * box.GetCenter();
+        Eigen::Isometry3d about = Eigen::Isometry3d::Identity();
+        about.translation() = centre;
+        f.T_machine_fiducial = about * twist_exp(xi) * about.inverse() * f.T_machine_fiducial;
+    }
 }
 
 }  // namespace partloc::sim

@@ -57,4 +57,9 @@ SimulatedJob simulate_paper_test(int test, std::uint64_t seed = 1, const Scenari
 /// L-section bar) with a datum corner, perturbed from nominal by a few mm and degrees; scans as above.
 SimulatedJob simulate_random_cell(std::uint64_t seed = 1, const ScenarioOptions& options = {});
 
+/// Probing as a person does it: each fiducial's probed pose moved off by its probing uncertainty (pose_sigma
+/// per axis in translation, pose_sigma over half the block's size in each turn, about the block's centre),
+/// drawn from `seed`. The truth keeps the fiducials where they are.
+void disturb_probing(Job& job, std::uint64_t seed);
+
 }  // namespace partloc::sim
