@@ -1,6 +1,7 @@
 #include "partloc/pipeline/run.hpp"
 
 #include <open3d/geometry/BoundingVolume.h>
+#include <Eigen/Eigenvalues>
 #include <open3d/geometry/KDTreeSearchParam.h>
 #include <tbb/global_control.h>
 #include <tbb/parallel_for.h>
@@ -41,6 +42,23 @@ double median_of(std::vector<double> v) {
 
 /// At most this many merged points go to the part's fit (it thins them further for its coarse stages).
 constexpr std::size_t kMergedPoints = 150000;
+
+/// The largest 1-sigma shift, in any direction, of point a under a registration with this information
+/// (twist [w, v] about the origin); 0 when the information is empty.
+double sigma_at(const Matrix6d& information, const Eigen::Vector3d& a) {
+    Eigen::SelfAdjointEigenSolver<Matrix6d> es(information);
+    if (!(es.eigenvalues()(5) > 0)) return 0.0;
+    Vector6d inv = Vector6d::Zero();
+    for (int k = 0; k < 6; ++k)
+        if (es.eigenvalues()(k) > 1e-12 * es.eigenvalues()(5)) inv(k) = 1.0 / es.eigenvalues()(k);
+    const Matrix6d cov = es.eigenvectors() * inv.asDiagonal() * es.eigenvectors().transpose();
+    Eigen::Matrix<double, 3, 6> J;  // shift at a = v + w x a
+    J << 0, a.z(), -a.y(), 1, 0, 0,  //
+        -a.z(), 0, a.x(), 0, 1, 0,   //
+        a.y(), -a.x(), 0, 0, 0, 1;
+    const Eigen::Matrix3d c = J * cov * J.transpose();
+    return std::sqrt(std::max(0.0, Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(c).eigenvalues()(2)));
+}
 
 struct ScanWork {
     Scale scale;
@@ -491,17 +509,20 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     // it, and on a face nearly parallel to its planes (a part squared to the machine) that depends on the
     // noise: one point per voxel turned seed 1001's small reference faces 0.10 degrees, the voxels' means
     // 0.08-0.13 degrees, against 0.003-0.008 for all the points (the fit at the true registration).
+    // Scans left out of the part's fit (below: their registration is too uncertain at the part).
+    std::vector<char> in_fit(job.scans.size(), 1);
     const auto merge_registered = [&] {
         merged = std::make_shared<open3d::geometry::PointCloud>();
         registered = 0;
         std::size_t total = 0;
         for (std::size_t i = 0; i < job.scans.size(); ++i)
-            if (result.scans[i].registered) total += work[i].workpiece_points->points_.size();
+            if (result.scans[i].registered && in_fit[i]) total += work[i].workpiece_points->points_.size();
         const std::size_t stride = std::max<std::size_t>(1, (total + kMergedPoints - 1) / kMergedPoints);
         std::size_t at = 0;  // index into the concatenation, so that the stride runs on across scans
         for (std::size_t i = 0; i < job.scans.size(); ++i) {
             if (!result.scans[i].registered) continue;
             ++registered;
+            if (!in_fit[i]) continue;
             const auto& c = *work[i].workpiece_points;
             for (std::size_t k = 0; k < c.points_.size(); ++k, ++at) {
                 if (at % stride) continue;
@@ -550,14 +571,48 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     WorkpieceFitSettings wfs;
     wfs.noise = median_of(noises);
     wfs.spacing = spacing;
+    // A scan whose registration leaves the part uncertain by far more than the others' would pull the fit
+    // its way with all its points: its error is common to them and does not average out (measured: seed
+    // 1143, a scan placed by two fiducials seen so that its registration is uncertain by 0.076 mm (1 sigma)
+    // along y at the part, against 0.001-0.009 for the other scans, was 0.21 mm off and put the part 0.074 mm
+    // off). Such a scan stays registered (its points are in merged.ply and the stock) but the part is fitted
+    // without it, when the others locate it.
+    std::vector<double> reg_sigma(job.scans.size(), 0.0), sigmas;
+    for (std::size_t i = 0; i < job.scans.size(); ++i) {
+        const ScanResult& r = result.scans[i];
+        if (!r.registered || !work[i].workpiece_points || work[i].workpiece_points->points_.empty()) continue;
+        const Eigen::Vector3d a =
+            job.machine.motion(job.workpiece.moves_with, job.scans[i].axes) * reference.center;
+        reg_sigma[i] = sigma_at(r.information, a);
+        sigmas.push_back(reg_sigma[i]);
+    }
+    const double sigma_limit = std::max(0.1 * wfs.noise, 3.0 * median_of(sigmas));
+    std::size_t kept = 0, left_out = 0;
+    for (std::size_t i = 0; i < job.scans.size(); ++i) {
+        if (!result.scans[i].registered) continue;
+        in_fit[i] = !(reg_sigma[i] > sigma_limit);
+        (in_fit[i] ? kept : left_out) += 1;
+    }
+    if (kept == 0) std::fill(in_fit.begin(), in_fit.end(), 1);
+    if (kept && left_out) merge_registered();
     WorkpieceFit fit = fit_reference_surfaces(merged->points_, reference, wfs,
                                               merged->HasNormals() ? &merged->normals_ : nullptr);
+    if (kept && left_out && !fit.ok) {
+        // The others alone do not locate the part: all of them, then.
+        std::fill(in_fit.begin(), in_fit.end(), 1);
+        merge_registered();
+        fit = fit_reference_surfaces(merged->points_, reference, wfs,
+                                     merged->HasNormals() ? &merged->normals_ : nullptr);
+    }
     // A scan that one fiducial's fit alone placed, whose part points do not lie on the part that the other
     // scans locate, was placed by a look-alike of that fiducial: it is left out and the part fitted again.
     // Where the part was not found at all, such a scan is not trusted either (measured: a mirrored model,
     // the only fiducial fit that passed in its scan, placed it 143 mm and 180 degrees off; no point of it
     // lay on the part).
     if (reject_inconsistent_scans(work, fit, reference, wfs, result.scans)) {
+        bool any_in_fit = false;
+        for (std::size_t i = 0; i < job.scans.size(); ++i) any_in_fit |= result.scans[i].registered && in_fit[i];
+        if (!any_in_fit) std::fill(in_fit.begin(), in_fit.end(), 1);
         merge_registered();
         if (registered == 0) {
             w.message = "no scan could be registered to the machine: the part confirms none of them";
@@ -567,8 +622,25 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         fit = fit_reference_surfaces(merged->points_, reference, wfs,
                                      merged->HasNormals() ? &merged->normals_ : nullptr);
     }
-    // What is written (merged.ply) and meshed into the stock: one point per voxel of the scans' spacing.
-    result.merged = merged->VoxelDownSample(spacing);
+    // What is written (merged.ply) and meshed into the stock: one point per voxel of the scans' spacing, of
+    // every registered scan.
+    for (std::size_t i = 0; i < job.scans.size(); ++i)
+        if (result.scans[i].registered && !in_fit[i])
+            result.scans[i].warnings.push_back(
+                fmt("left out of the part's fit: its registration leaves the part uncertain by %.3g (1 sigma), "
+                    "more than %.3g",
+                    reg_sigma[i], sigma_limit));
+    if (std::count(in_fit.begin(), in_fit.end(), 0)) {
+        const auto fitted = merged;
+        const auto chosen = in_fit;
+        std::fill(in_fit.begin(), in_fit.end(), 1);
+        merge_registered();
+        result.merged = merged->VoxelDownSample(spacing);
+        merged = fitted;
+        in_fit = chosen;
+    } else {
+        result.merged = merged->VoxelDownSample(spacing);
+    }
     w.rmse = fit.rmse;
     w.points = merged->points_.size();
     w.inliers = fit.inliers;
@@ -624,7 +696,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     {
         UncertaintyInputs ui;
         for (std::size_t i = 0; i < job.scans.size(); ++i) {
-            if (!result.scans[i].registered) continue;
+            if (!result.scans[i].registered || !in_fit[i]) continue;
             ui.scan_points.push_back(work[i].workpiece_points);
             std::vector<std::size_t> used;
             for (const auto& name : result.scans[i].fiducials)
