@@ -92,25 +92,51 @@ TEST(SmallReferenceFaces, PartSquaredToTheMachineIsLocatedWithinThreeHundredthsO
     check_job(sim::simulate_random_cell(1001), 0.05, 0.03);
 }
 
-// Seed 1150: the part's coarse fit from nominal slides 19.5 degrees off about x (with every scan at its
-// true registration too). Not found is an answer; located wrong is not.
-TEST(PartFit, ThatSlidesIntoTheWrongPlaceIsNotALocatedPart) {
+// Seed 1150 (the fiducials' probed poses disturbed as in bench/trials): the part sits 1.6 degrees off
+// nominal, but the part's fit from nominal with its widest stage first ended 20.5 degrees off, even when it
+// started at the truth (points of faces that are not reference surfaces, near them, held it there). The fit
+// now also runs from narrower first stages and keeps the one with the most points on the surfaces.
+TEST(PartFit, AWideFirstStageThatSlidesOffDoesNotWin) {
     open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
     sim::SimulatedJob sj = sim::simulate_random_cell(1150);
-    // The fiducials' probed poses disturbed as in bench/trials (pose_sigma): with them only two scans
-    // register, and the part's fit from nominal goes wrong.
     sim::disturb_probing(sj.job, 1150);
     RunSettings rs;
     rs.build_stock = false;
     const JobResult result = run_job(sj.job, rs);
-    std::printf("seed 1150: %s %s\n", result.located ? "located" : "not located", result.workpiece.message.c_str());
-    if (result.located) {
-        const PoseError e = pose_error(result.workpiece.T_machine_workpiece, sj.truth.T_machine_workpiece);
-        EXPECT_LT(e.translation, 0.05);
-        EXPECT_LT(e.rotation_deg, 0.05);
-    } else {
-        EXPECT_NE(result.workpiece.message.find("did not find the part"), std::string::npos) << result.workpiece.message;
+    ASSERT_TRUE(result.located) << result.workpiece.message;
+    const PoseError e = pose_error(result.workpiece.T_machine_workpiece, sj.truth.T_machine_workpiece);
+    std::printf("seed 1150: %.4f mm %.4f deg off\n", e.translation, e.rotation_deg);
+    EXPECT_LT(e.translation, 0.05);
+    EXPECT_LT(e.rotation_deg, 0.05);
+}
+
+// Seed 1143 (probing disturbed as in bench/trials): scan 3 is placed by fiducials B and C seen so that its
+// registration leaves the part uncertain by 0.076 mm (1 sigma) along y, against at most 0.009 mm for the
+// other scans; it is 0.21 mm off there, and with it the part was located 0.074 mm off. It stays registered,
+// with a warning, and the part is fitted without it.
+TEST(PartFit, AScanWhoseRegistrationIsFarLessCertainIsLeftOutOfIt) {
+    open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
+    sim::SimulatedJob sj = sim::simulate_random_cell(1143);
+    sim::disturb_probing(sj.job, 1143);
+    RunSettings rs;
+    rs.build_stock = false;
+    const JobResult result = run_job(sj.job, rs);
+    ASSERT_TRUE(result.located) << result.workpiece.message;
+    int left_out = 0;
+    for (std::size_t i = 0; i < result.scans.size(); ++i) {
+        const auto& r = result.scans[i];
+        for (const auto& w : r.warnings) {
+            if (w.find("left out of the part's fit") == std::string::npos) continue;
+            ++left_out;
+            std::printf("  %s: %s\n", r.file.c_str(), w.c_str());
+            EXPECT_TRUE(r.registered);
+        }
     }
+    EXPECT_EQ(left_out, 1);
+    const PoseError e = pose_error(result.workpiece.T_machine_workpiece, sj.truth.T_machine_workpiece);
+    std::printf("seed 1143: %.4f mm %.4f deg off\n", e.translation, e.rotation_deg);
+    EXPECT_LT(e.translation, 0.04);
+    EXPECT_LT(e.rotation_deg, 0.03);
 }
 
 TEST(PaperTest, Test2WithTheLargestTiltIsLocated) {
