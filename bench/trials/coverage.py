@@ -43,11 +43,12 @@ RULES = {
         (t95(t["m"] - 1) * t["scans"][a]) ** 2 + (1.96 * t["probing"][a]) ** 2 + (1.96 * t["noise"][a]) ** 2),
     "1.96*(scans + probing + noise)": lambda t, a: 1.96 * math.sqrt(
         t["scans"][a] ** 2 + t["probing"][a] ** 2 + t["noise"][a] ** 2),
+    # The rule in pipeline/uncertainty.cpp from 0ded79d on (after the fresh seeds 1200-1299).
     "1.96*(scans + probing)": lambda t, a: 1.96 * math.sqrt(t["scans"][a] ** 2 + t["probing"][a] ** 2),
     "1.96*(max(scans, noise) + probing)": lambda t, a: 1.96 * math.sqrt(
         max(t["scans"][a], t["noise"][a]) ** 2 + t["probing"][a] ** 2),
     "t(m-1)*(scans + probing)": lambda t, a: t95(t["m"] - 1) * math.sqrt(t["scans"][a] ** 2 + t["probing"][a] ** 2),
-    # The rule in pipeline/uncertainty.cpp from then on.
+    # The rule in pipeline/uncertainty.cpp from f7b39b1 to 0ded79d.
     "1.96*max(scans, noise + probing)": lambda t, a: 1.96 * max(
         t["scans"][a], math.hypot(t["noise"][a], t["probing"][a])),
     "t(m-1)*max(scans, noise) + 1.96*probing": lambda t, a: math.sqrt(

@@ -1,7 +1,7 @@
 #pragma once
 // How far the located workpiece may be from the truth (issue 4): half-widths of 95 % intervals of its origin
-// and Euler angles: 1.96 times the larger of two estimates of the 1-sigma error, the first part below, and
-// the second and third in quadrature:
+// and Euler angles: 1.96 times the first two parts below in quadrature (the third is reported, and is in
+// the first already):
 //  - the scans: each registered scan brings its own registration error and its own noise and view. Fitting
 //    the part again with each scan left out (the jackknife over scans) measures how much the answer moves
 //    with them, bias included, which the fit's information matrix alone does not: edge effects and
