@@ -235,17 +235,13 @@ TEST(LoneFiducialMoved, ScanItAlonePlacesIsRejected) {
     EXPECT_LT(pose_error(result.workpiece.T_machine_workpiece, sj.truth.T_machine_workpiece).translation, 0.05);
 }
 
-// A shape close to a fiducial's mirror image (issue 4): fiducial A's model mirrored, in a job of one scan
-// that sees A well and B hardly at all. The mirrored model fits A's points turned over (measured: 143 mm and
-// 180 degrees off, passing every check of the fit), and with one scan there is no other scan to disagree.
-// The part must then refuse it: none of the scan's points, so placed, lies on the reference surfaces. The
-// scan is rejected with that reason, and the job says the part was not located.
-TEST(MirroredFiducial, LoneScanThePartDoesNotConfirmIsRejected) {
-    open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
-    sim::SimulatedJob sj = sim::simulate_random_cell(1080);
+namespace {
+// Fiducial A's model mirrored, in a job of scan `scan` alone: the scan is registered right, or rejected
+// because the part does not confirm it; the part is never located wrongly.
+void check_lone_scan_with_a_mirrored(sim::SimulatedJob sj, std::size_t scan) {
     ASSERT_EQ(sj.job.fiducials[0].name, "A");
-    ASSERT_GT(sj.truth.scans[0].fiducial_points["A"], 10000u) << "scan 0 must see A well for this test";
-    sj.job.scans.resize(1);
+    ASSERT_GT(sj.truth.scans[scan].fiducial_points["A"], 8000u) << "the scan must see A well for this test";
+    sj.job.scans = {sj.job.scans[scan]};
     auto mesh = std::make_shared<open3d::geometry::TriangleMesh>(*sj.job.fiducials[0].model.mesh);
     for (auto& v : mesh->vertices_) v.x() = -v.x();
     for (auto& tri : mesh->triangles_) std::swap(tri(1), tri(2));
@@ -258,10 +254,32 @@ TEST(MirroredFiducial, LoneScanThePartDoesNotConfirmIsRejected) {
     std::printf("  %s: %s | %s\n", r0.file.c_str(), r0.registered ? "registered" : "rejected", r0.message.c_str());
     if (r0.registered) {
         const Eigen::Vector3d at = sj.truth.T_machine_workpiece.translation();
-        const Eigen::Isometry3d D = r0.T_machine_scan * sj.truth.scans[0].T_machine_scan.inverse();
+        const Eigen::Isometry3d D = r0.T_machine_scan * sj.truth.scans[scan].T_machine_scan.inverse();
         EXPECT_LT((D * at - at).norm(), 0.1) << "registered wrongly by " << r0.fiducials.front();
     } else {
         EXPECT_NE(r0.message.find("the part does not confirm it"), std::string::npos) << r0.message;
     }
     EXPECT_FALSE(result.located && pose_error(result.workpiece.T_machine_workpiece, sj.truth.T_machine_workpiece).translation > 0.1);
+}
+}  // namespace
+
+// A shape close to a fiducial's mirror image (issue 4), in a job of one scan that sees A well and B hardly at
+// all. The mirrored model fits A's points turned over (measured: 143 mm and 180 degrees off, passing every
+// check of the fit), and with one scan there is no other scan to disagree. The part must then refuse it:
+// none of the scan's points, so placed, lies on the reference surfaces.
+TEST(MirroredFiducial, LoneScanThePartDoesNotConfirmIsRejected) {
+    open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
+    check_lone_scan_with_a_mirrored(sim::simulate_random_cell(1080), 0);
+}
+
+// The same where the scan so placed puts 1107 points on one plane of the reference surfaces (seed 1320, 5 %
+// outliers, probing disturbed, as in bench/trials where it was registered 224 mm and 178 degrees off): the
+// points must locate the part in all six degrees of freedom, or the scan is rejected.
+TEST(MirroredFiducial, LoneScanWhosePointsFitOnlyOnePlaneIsRejected) {
+    open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
+    sim::ScenarioOptions opt;
+    opt.scanner.outlier_fraction = 0.05;
+    sim::SimulatedJob sj = sim::simulate_random_cell(1320, opt);
+    sim::disturb_probing(sj.job, 1320);
+    check_lone_scan_with_a_mirrored(sj, 1);
 }

@@ -85,7 +85,8 @@ void unregister(ScanResult& r, std::string message) {
 /// five times the noise (RMS over the points on the surfaces; directions the scan leaves free move no point
 /// along a normal and do not count, and do not bias the merged fit either). Such scans are marked not
 /// registered, with the reason; returns whether any was. A lone scan that the merged fit located the part
-/// from by itself is confirmed by that fit.
+/// from by itself is confirmed by that fit; where the merged fit did not locate the part, a lone scan's own
+/// fit must (all six degrees of freedom, the residual gate), or the scan is rejected.
 bool reject_inconsistent_scans(const std::vector<ScanWork>& work, const WorkpieceFit& fit,
                                const Surface& reference, const WorkpieceFitSettings& wfs,
                                std::vector<ScanResult>& scans) {
@@ -113,6 +114,13 @@ bool reject_inconsistent_scans(const std::vector<ScanWork>& work, const Workpiec
                       "reference surfaces (needs %.0f)",
                       static_cast<double>(own.inliers), static_cast<double>(pts.size()),
                       static_cast<double>(wfs.min_inliers));
+        } else if (!located && !own.ok) {
+            // With the part not located from the scans together there is nothing else to hold this scan
+            // to: its own points must locate the part, all six degrees of freedom (measured: seed 1320,
+            // 5 % outliers, fiducial A's model mirrored: the mirrored model alone placed scan 2 224 mm and
+            // 178 degrees off, where 1107 of its points lay on one plane that the reference surfaces slid
+            // onto, conditioning 0).
+            why = "the part does not confirm it: fitted on its points alone, " + own.reason;
         } else if (located) {
             double sum = 0.0;
             std::size_t on = 0;
