@@ -520,7 +520,8 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     // it, and on a face nearly parallel to its planes (a part squared to the machine) that depends on the
     // noise: one point per voxel turned seed 1001's small reference faces 0.10 degrees, the voxels' means
     // 0.08-0.13 degrees, against 0.003-0.008 for all the points (the fit at the true registration).
-    // Scans left out of the part's fit (below: their registration is too uncertain at the part).
+    // in_fit: the scans in the part's fit; a registered scan whose registration is too uncertain at the part
+    // is left out of it (below), but not out of merged.ply and the stock.
     std::vector<char> in_fit(job.scans.size(), 1);
     const auto merge_registered = [&] {
         merged = std::make_shared<open3d::geometry::PointCloud>();
@@ -588,14 +589,16 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     // along y at the part, against 0.001-0.009 for the other scans, was 0.21 mm off and put the part 0.074 mm
     // off). Such a scan stays registered (its points are in merged.ply and the stock) but the part is fitted
     // without it, when the others locate it.
-    std::vector<double> reg_sigma(job.scans.size(), 0.0), sigmas;
+    const auto has_points = [&](std::size_t i) {
+        return work[i].workpiece_points && !work[i].workpiece_points->points_.empty();
+    };
+    std::vector<double> reg_sigma(job.scans.size(), 0.0);
     for (std::size_t i = 0; i < job.scans.size(); ++i) {
         const ScanResult& r = result.scans[i];
-        if (!r.registered || !work[i].workpiece_points || work[i].workpiece_points->points_.empty()) continue;
+        if (!r.registered || !has_points(i)) continue;
         const Eigen::Vector3d a =
             job.machine.motion(job.workpiece.moves_with, job.scans[i].axes) * reference.center;
         reg_sigma[i] = sigma_at(r.information, a);
-        sigmas.push_back(reg_sigma[i]);
     }
     // Uncertain by more than the noise at the part is no registration (measured: seed 1430 with fiducial A
     // mirrored, a scan held by B and C alone, 0.59 mm (1 sigma) at the part, was 0.92 mm off).
@@ -608,9 +611,6 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         loose = true;
     }
     if (loose) {
-        sigmas.clear();
-        for (std::size_t i = 0; i < job.scans.size(); ++i)
-            if (result.scans[i].registered && reg_sigma[i] > 0) sigmas.push_back(reg_sigma[i]);
         merge_registered();
         if (registered == 0) {
             w.message = "no scan could be registered to the machine";
@@ -618,6 +618,9 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
             return result;
         }
     }
+    std::vector<double> sigmas;  // of the scans still registered
+    for (std::size_t i = 0; i < job.scans.size(); ++i)
+        if (result.scans[i].registered && has_points(i)) sigmas.push_back(reg_sigma[i]);
     const double sigma_limit = std::max(0.1 * wfs.noise, 3.0 * median_of(sigmas));
     std::size_t kept = 0, left_out = 0;
     for (std::size_t i = 0; i < job.scans.size(); ++i) {
