@@ -238,7 +238,8 @@ TEST(LoneFiducialMoved, ScanItAlonePlacesIsRejected) {
 namespace {
 // Fiducial A's model mirrored, in a job of scan `scan` alone: the scan is registered right, or rejected
 // because the part does not confirm it; the part is never located wrongly.
-void check_lone_scan_with_a_mirrored(sim::SimulatedJob sj, std::size_t scan) {
+void check_lone_scan_with_a_mirrored(sim::SimulatedJob sj, std::size_t scan,
+                                     const std::string& reason = "the part does not confirm it") {
     ASSERT_EQ(sj.job.fiducials[0].name, "A");
     ASSERT_GT(sj.truth.scans[scan].fiducial_points["A"], 8000u) << "the scan must see A well for this test";
     sj.job.scans = {sj.job.scans[scan]};
@@ -257,7 +258,7 @@ void check_lone_scan_with_a_mirrored(sim::SimulatedJob sj, std::size_t scan) {
         const Eigen::Isometry3d D = r0.T_machine_scan * sj.truth.scans[scan].T_machine_scan.inverse();
         EXPECT_LT((D * at - at).norm(), 0.1) << "registered wrongly by " << r0.fiducials.front();
     } else {
-        EXPECT_NE(r0.message.find("the part does not confirm it"), std::string::npos) << r0.message;
+        EXPECT_NE(r0.message.find(reason), std::string::npos) << r0.message;
     }
     EXPECT_FALSE(result.located && pose_error(result.workpiece.T_machine_workpiece, sj.truth.T_machine_workpiece).translation > 0.1);
 }
@@ -272,14 +273,24 @@ TEST(MirroredFiducial, LoneScanThePartDoesNotConfirmIsRejected) {
     check_lone_scan_with_a_mirrored(sim::simulate_random_cell(1080), 0);
 }
 
-// The same where the scan so placed puts 1107 points on one plane of the reference surfaces (seed 1320, 5 %
-// outliers, probing disturbed, as in bench/trials where it was registered 224 mm and 178 degrees off): the
-// points must locate the part in all six degrees of freedom, or the scan is rejected.
+// The same where the scan so placed puts its points on one plane of the reference surfaces: the points must
+// locate the part in all six degrees of freedom, or the scan is rejected. Found in bench/trials on seed 1320
+// (5 % outliers, probing disturbed), registered 224 mm and 178 degrees off with 1107 points on one plane;
+// since the screening's changes of issue 3 that scan's mirrored fit no longer wins there (it is refuted by
+// B), and seed 1355's scan 1 (probing disturbed), placed by B alone, is the case that reaches this check.
 TEST(MirroredFiducial, LoneScanWhosePointsFitOnlyOnePlaneIsRejected) {
     open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
-    sim::ScenarioOptions opt;
-    opt.scanner.outlier_fraction = 0.05;
-    sim::SimulatedJob sj = sim::simulate_random_cell(1320, opt);
-    sim::disturb_probing(sj.job, 1320);
-    check_lone_scan_with_a_mirrored(sj, 1);
+    sim::SimulatedJob sj = sim::simulate_random_cell(1355);
+    sim::disturb_probing(sj.job, 1355);
+    check_lone_scan_with_a_mirrored(sj, 1, "do not show enough of the reference surfaces to fix all six");
+}
+
+// A scan that two fiducials hold too loosely to place the part within the noise is rejected (0b2fcc2).
+// Seed 1430 with A mirrored (probing disturbed, as in bench/trials): scan 3 is held by B and C alone, 0.59 mm
+// uncertain at the part (1 sigma), and was registered 0.92 mm off before that check.
+TEST(MirroredFiducial, ScanHeldTooLooselyIsRejected) {
+    open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
+    sim::SimulatedJob sj = sim::simulate_random_cell(1430);
+    sim::disturb_probing(sj.job, 1430);
+    check_lone_scan_with_a_mirrored(sj, 3, "the fiducials in view hold it too loosely");
 }

@@ -1,10 +1,17 @@
-// The sample grid must answer exactly what a KD-tree answers: same neighbours, same order, same distances.
+// The sample grid must answer exactly what a KD-tree answers: same neighbours, same order, same distances;
+// the coarse map (nearest_map.hpp) within a cell of it.
 #include <gtest/gtest.h>
 #include <open3d/geometry/KDTreeFlann.h>
 #include <open3d/geometry/TriangleMesh.h>
 
+#include <algorithm>
+#include <cmath>
 #include <random>
+#include <thread>
 
+#include "partloc/core/geometry.hpp"
+#include "partloc/core/icp.hpp"
+#include "partloc/core/radius_grid.hpp"
 #include "partloc/core/sample_grid.hpp"
 #include "partloc/core/surface.hpp"
 
@@ -85,4 +92,123 @@ TEST(SampleGrid, EmptyAndFarQueries) {
     EXPECT_EQ(i[0], 0);
     ASSERT_EQ(g.nearest(Eigen::Vector3d(1, 2, 3.5), 4, 1.0, i, d), 1);
     EXPECT_NEAR(d[0], 0.25, 1e-12);
+}
+
+// The coarse map answers, for any point, a sample never more than a cell's diagonal farther than the nearest
+// sample, within its reach, and the same answer from any thread.
+TEST(NearestMap, AnswersASampleWithinACellDiagonalOfTheNearest) {
+    open3d::geometry::TriangleMesh box = *open3d::geometry::TriangleMesh::CreateBox(40, 25, 10);
+    box.Translate(Eigen::Vector3d(-20, -12.5, -5));
+    Surface s = make_surface(sample_mesh(box, 0.5), 0.5);
+    const double cell = 0.8, reach = 4.0;
+    add_coarse_map(s, cell, reach);
+    ASSERT_TRUE(s.coarse);
+    const double diagonal = std::sqrt(3.0) * s.coarse->cell_size();
+    std::mt19937_64 rng(11);
+    std::uniform_int_distribution<std::size_t> pick(0, s.points.size() - 1);
+    std::normal_distribution<double> g(0.0, 1.0);
+    std::vector<Eigen::Vector3d> queries;
+    for (int q = 0; q < 5000; ++q) queries.push_back(s.points[pick(rng)] + Eigen::Vector3d(g(rng), g(rng), g(rng)));
+    int answered = 0;
+    std::vector<int> first(queries.size());
+    for (std::size_t q = 0; q < queries.size(); ++q) {
+        const Eigen::Vector3d& p = queries[q];
+        double exact2 = 0.0;
+        ASSERT_GE(s.nearest(p, &exact2), 0);
+        const int k = s.coarse->nearest(p);
+        first[q] = k;
+        if (std::sqrt(exact2) + diagonal < reach - diagonal) {
+            ASSERT_GE(k, 0) << "query " << q;  // a sample lies within reach of the cell's centre
+        }
+        if (k < 0) continue;
+        ++answered;
+        EXPECT_LE((s.points[k] - p).norm(), std::sqrt(exact2) + diagonal + 1e-9) << "query " << q;
+    }
+    EXPECT_GT(answered, 4900);
+    // Far from the block, and outside the map's box: no sample.
+    EXPECT_EQ(s.coarse->nearest(Eigen::Vector3d(0, 0, 5.0 + 3 * reach)), -1);
+    EXPECT_EQ(s.coarse->nearest(Eigen::Vector3d(1e6, 0, 0)), -1);
+    // A second map of the same samples, asked from several threads at once, gives the same answers.
+    Surface t = make_surface(sample_mesh(box, 0.5), 0.5);
+    add_coarse_map(t, cell, reach);
+    std::vector<int> second(queries.size(), -7);
+    std::vector<std::thread> workers;
+    for (int w = 0; w < 4; ++w)
+        workers.emplace_back([&, w] {
+            for (std::size_t q = w; q < queries.size() + w; ++q) {
+                const std::size_t i = q % queries.size();
+                const int k = t.coarse->nearest(queries[i]);
+                if (q % 4 == static_cast<std::size_t>(w)) second[i] = k;
+            }
+        });
+    for (auto& w : workers) w.join();
+    EXPECT_EQ(first, second);
+}
+
+// The fit with approximate coarse stages ends where the exact fit ends: its last stage is exact.
+TEST(NearestMap, AFitWithApproximateCoarseStagesEndsAtTheExactFitsPose) {
+    // A block with a step, so that every direction is held.
+    open3d::geometry::TriangleMesh a = *open3d::geometry::TriangleMesh::CreateBox(40, 25, 10);
+    open3d::geometry::TriangleMesh b = *open3d::geometry::TriangleMesh::CreateBox(15, 25, 8);
+    b.Translate(Eigen::Vector3d(25, 0, 10));  // a step on the top face, at one end
+    a += b;
+    Surface target = make_surface(sample_mesh(a, 0.4), 0.4);
+    add_coarse_map(target, 0.75, 7.0);
+    // The scan: samples of the same block, noisy, moved by a known pose.
+    std::mt19937_64 rng(5);
+    std::normal_distribution<double> noise(0.0, 0.05);
+    const auto dense = sample_mesh(a, 0.3);
+    std::vector<Eigen::Vector3d> source;
+    for (const auto& p : dense->points_) source.push_back(p + Eigen::Vector3d(noise(rng), noise(rng), noise(rng)));
+    Eigen::Isometry3d off = Eigen::Isometry3d::Identity();
+    off.linear() = Eigen::AngleAxisd(6.0 * M_PI / 180.0, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
+    off.translation() = Eigen::Vector3d(1.5, -1.0, 0.8);
+    IcpSettings exact;
+    exact.max_distances = {3.0, 1.5, 0.4};
+    IcpSettings approximate = exact;
+    approximate.approximate_from = 1.5;
+    const IcpResult e = icp_point_to_plane(source, target, off, exact);
+    const IcpResult m = icp_point_to_plane(source, target, off, approximate);
+    const PoseError to_truth = pose_error(m.T_target_source, Eigen::Isometry3d::Identity());
+    EXPECT_LT(to_truth.translation, 0.01);
+    EXPECT_LT(to_truth.rotation_deg, 0.01);
+    const PoseError between = pose_error(m.T_target_source, e.T_target_source);
+    EXPECT_LT(between.translation, 1e-3);
+    EXPECT_LT(between.rotation_deg, 1e-3);
+    EXPECT_NEAR(static_cast<double>(m.inliers), static_cast<double>(e.inliers), 0.001 * e.inliers);
+}
+
+// The scan's radius grid answers the KD-tree's radius search exactly: the same points, ascending.
+TEST(RadiusGrid, SamePointsAsTheKdTreesRadiusSearch) {
+    std::mt19937_64 rng(3);
+    std::normal_distribution<double> g(0.0, 1.0);
+    std::uniform_real_distribution<double> u(-80.0, 80.0);
+    // A scan-like cloud: two planes and a block's faces, plus far outliers.
+    std::vector<Eigen::Vector3d> pts;
+    for (int i = 0; i < 20000; ++i) pts.emplace_back(u(rng), u(rng), 0.05 * g(rng));
+    for (int i = 0; i < 10000; ++i) pts.emplace_back(u(rng), 0.05 * g(rng) + 30.0, 0.5 * std::abs(u(rng)));
+    for (int i = 0; i < 50; ++i) pts.emplace_back(1000 * g(rng), 1000 * g(rng), 1000 * g(rng));
+    open3d::geometry::PointCloud cloud;
+    cloud.points_ = pts;
+    const open3d::geometry::KDTreeFlann tree(cloud);
+    for (double cell : {3.0, 0.7, 40.0}) {
+        const RadiusGrid grid(pts, cell);
+        int nonempty = 0;
+        for (int q = 0; q < 300; ++q) {
+            const Eigen::Vector3d c = q % 3 ? pts[q * 97 % pts.size()] : Eigen::Vector3d(u(rng), u(rng), u(rng));
+            const double r = 0.5 + 60.0 * (q % 7) / 6.0;
+            std::vector<int> ti, gi;
+            std::vector<double> td;
+            tree.SearchRadius(c, r, ti, td);
+            std::sort(ti.begin(), ti.end());
+            grid.within(c, r, gi);
+            ASSERT_EQ(gi, ti) << "cell " << cell << " query " << q << " radius " << r;
+            nonempty += !gi.empty();
+        }
+        EXPECT_GT(nonempty, 200);
+    }
+    const RadiusGrid empty(std::vector<Eigen::Vector3d>{}, 1.0);
+    std::vector<int> none;
+    empty.within(Eigen::Vector3d::Zero(), 10.0, none);
+    EXPECT_TRUE(none.empty());
 }

@@ -136,7 +136,15 @@ int main(int argc, char** argv) {
         const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
         seconds += s;
         ++trials;
-        count_scans(sj, r, real_scans, c);
+        Counts sc;  // this trial's main run, printed below and added to c
+        count_scans(sj, r, real_scans, sc);
+        c.right += sc.right;
+        c.wrong += sc.wrong;
+        c.missed += sc.missed;
+        c.none_in_view += sc.none_in_view;
+        c.traps += sc.traps;
+        c.traps_wrong += sc.traps_wrong;
+        for (const auto& [k, n] : sc.missed_why) c.missed_why[k] += n;
         std::printf("%4llu  ", static_cast<unsigned long long>(seed));
         if (r.located) {
             ++located;
@@ -181,6 +189,10 @@ int main(int argc, char** argv) {
                         u.origin_noise.y(), u.origin_noise.z(), u.euler_noise.x(), u.euler_noise.y(), u.euler_noise.z(),
                         u.scans, r.workpiece.rmse, r.workpiece.points, r.workpiece.inliers);
         }
+        // Each trial's scans, so that two runs on the same seeds can be compared trial by trial.
+        std::printf("      scans: %d right, %d WRONG, %d rejected with a fiducial in view", sc.right, sc.wrong, sc.missed);
+        for (const auto& [k, n] : sc.missed_why) std::printf(" [%d %s]", n, k.c_str());
+        std::printf(", %d none in view, %d of %d traps registered\n", sc.none_in_view, sc.traps_wrong, sc.traps);
         // A shape close to a fiducial's mirror image: fiducial A's model mirrored.
         if (seed % 5 == 0) {
             sim::SimulatedJob mirrored = sj;

@@ -28,17 +28,25 @@ struct Normal {
 
 // One Gauss-Newton system: residual r = (T p - q) . n, Tukey weight with scale c.
 Normal accumulate(const std::vector<Eigen::Vector3d>& source, const Surface& target, const Eigen::Isometry3d& T,
-                  double max_distance, bool weighted, const std::vector<Eigen::Vector3d>* normals, double min_cos) {
+                  double max_distance, bool weighted, const std::vector<Eigen::Vector3d>* normals, double min_cos,
+                  bool approximate) {
     return tbb::parallel_reduce(
         tbb::blocked_range<std::size_t>(0, source.size(), 512), Normal{},
         [&](const tbb::blocked_range<std::size_t>& range, Normal acc) {
             int idx[4];
             double d2[4];
+            const double max_d2 = max_distance * max_distance;
+            auto coarse_nearest = [&](const Eigen::Vector3d& p, int* i, double* q2) {
+                i[0] = target.coarse->nearest(p);
+                if (i[0] < 0) return 0;
+                q2[0] = (p - target.points[i[0]]).squaredNorm();
+                return q2[0] <= max_d2 ? 1 : 0;
+            };
             for (std::size_t i = range.begin(); i != range.end(); ++i) {
                 const Eigen::Vector3d p = T * source[i];
                 // Of the nearest samples, the one whose tangent plane is nearest: at an edge the nearest
                 // sample may lie on the other face, and its plane would pull the fit sideways.
-                const int found = target.grid.nearest(p, 4, max_distance, idx, d2);
+                const int found = approximate ? coarse_nearest(p, idx, d2) : target.grid.nearest(p, 4, max_distance, idx, d2);
                 if (found < 1) continue;
                 int k = -1;
                 double r = 0.0;
@@ -82,9 +90,11 @@ IcpResult icp_point_to_plane(const std::vector<Eigen::Vector3d>& source, const S
     const double scale = std::max(target.diameter, 1e-9);
     bool all_converged = true;
     for (double max_distance : settings.max_distances) {
+        const bool approximate = target.coarse && max_distance >= settings.approximate_from &&
+                                 max_distance <= target.coarse->reach();
         bool converged = false;
         for (int it = 0; it < settings.max_iterations; ++it) {
-            const Normal sys = accumulate(source, target, T, max_distance, true, source_normals, min_cos);
+            const Normal sys = accumulate(source, target, T, max_distance, true, source_normals, min_cos, approximate);
             ++result.iterations;
             if (sys.n < settings.min_correspondences) {
                 result.T_target_source = T;
@@ -103,7 +113,7 @@ IcpResult icp_point_to_plane(const std::vector<Eigen::Vector3d>& source, const S
         }
         all_converged = all_converged && converged;
     }
-    const Normal last = accumulate(source, target, T, settings.max_distances.back(), false, source_normals, min_cos);
+    const Normal last = accumulate(source, target, T, settings.max_distances.back(), false, source_normals, min_cos, false);
     result.T_target_source = T;
     result.converged = all_converged;
     result.inliers = last.n;

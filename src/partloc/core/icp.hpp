@@ -5,6 +5,7 @@
 // reused for every scan and candidate (Open3D rebuilds the target tree on every call), and because the
 // result needs the fit's information matrix in the model frame for the verification and the uncertainty.
 #include <Eigen/Geometry>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -23,6 +24,11 @@ struct IcpSettings {
     /// the other face lie within the correspondence distance of the datum's plane and, all on one side of
     /// it, pull it over; their normals tell them apart.
     double max_normal_angle_deg = 30.0;
+    /// Stages whose distance is at least this look the nearest sample up in the target's coarse map (when
+    /// it has one, and the distance is within the map's reach): one sample per point, the one nearest the
+    /// centre of the point's cell. For screening fits from poses degrees off, where any sample of the right
+    /// face gives the right plane; the stages that decide a pose stay exact.
+    double approximate_from = std::numeric_limits<double>::infinity();
 };
 
 struct IcpResult {

@@ -12,6 +12,7 @@
 
 #include "partloc/core/geometry.hpp"
 #include "partloc/core/ppf.hpp"
+#include "partloc/core/radius_grid.hpp"
 #include "partloc/core/surface.hpp"
 #include "partloc/core/verify.hpp"
 
@@ -24,10 +25,16 @@ struct Scale {
     double noise = 0.0;    ///< scan noise, 1 sigma (job units)
 };
 
-/// A scan ready for fitting: its points, a search tree and a coarse oriented copy for the global fit.
+/// A scan ready for fitting: its points, a search structure and a coarse oriented copy for the global fit.
 struct PreparedScan {
     std::shared_ptr<open3d::geometry::PointCloud> cloud;  ///< valid points, scan frame (no normals)
-    std::shared_ptr<open3d::geometry::KDTreeFlann> tree;
+    std::shared_ptr<RadiusGrid> grid;                     ///< over cloud's points
+    /// Every sparse_stride-th point of `cloud` (by their order) and its grid, for the screening of the global
+    /// fit's candidates, which takes a subsample of the points around each; the same as cloud and grid on a
+    /// small scan (stride 1).
+    std::shared_ptr<open3d::geometry::PointCloud> sparse;
+    std::shared_ptr<RadiusGrid> sparse_grid;
+    std::size_t sparse_stride = 1;
     std::vector<Eigen::Vector3d> coarse_points, coarse_normals;  ///< at the PPF sampling
     Eigen::Vector3d viewpoint = Eigen::Vector3d::Zero();           ///< scanner position, scan frame
     Scale scale;
@@ -125,10 +132,12 @@ Surface make_pose_target(const std::vector<const PreparedModel*>& models,
 /// axis values), from `init` (T_machine_scan, e.g. from one fiducial). `start_distance`: the first stage's
 /// correspondence distance (0: a quarter of the sampling, for a start that is already close). `target`:
 /// make_pose_target(models, T_machine_model) where the caller keeps it; null builds it.
+/// `max_points_per_model`: when > 0, the points taken near each fiducial are thinned (every k-th) to at most
+/// this many, for a fit that only places or judges a hypothesis; its JtJ is then that of the subsample.
 ScanPoseFit fit_scan_pose(const PreparedScan& scan, const std::vector<const PreparedModel*>& models,
                           const std::vector<Eigen::Isometry3d>& T_machine_model, const Eigen::Isometry3d& init,
                           const LocalizeSettings& settings, double start_distance = 0.0,
-                          const Surface* target = nullptr);
+                          const Surface* target = nullptr, std::size_t max_points_per_model = 0);
 
 /// Fits `model` to `scan`: global fit, fine fit of the best candidates, verification, decision; a second
 /// distinct pose with nearly the best support makes the answer ambiguous, and it is rejected.

@@ -1,7 +1,5 @@
 #include "partloc/core/ppf.hpp"
 
-#include <open3d/geometry/KDTreeFlann.h>
-#include <open3d/geometry/PointCloud.h>
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
@@ -157,11 +155,35 @@ std::vector<std::vector<PoseCandidate>> ppf_detect(const std::vector<const PpfMo
             throw std::invalid_argument("ppf_detect: the models differ in sampling or bins");
     }
     const PpfFeatures features(s);
-    open3d::geometry::PointCloud cloud;
-    cloud.points_ = scene_points;
-    open3d::geometry::KDTreeFlann tree(cloud);
     double reach = 0.0;
     for (const auto* m : models) reach = std::max(reach, m->diameter());
+    // The scene's points in cubic cells of the reach: every partner of a reference point lies in the 27
+    // cells around its own. The voting does not depend on the order its pairs come in (the running maximum
+    // keeps the lowest index among equals), so the pairs need no sorting; a KD-tree's radius search sorted
+    // every reference's 2000 or so partners (about 5 % of a job's time, perf on seed 106).
+    Eigen::AlignedBox3d box;
+    for (const auto& p : scene_points) box.extend(p);
+    // Cells of at least the reach; larger when far outliers stretch the box (at most about 2 million cells).
+    double cell = std::max(reach, 1e-9);
+    while (((box.sizes() / cell).array().floor() + 1).prod() > 2.0e6) cell *= 2.0;
+    const Eigen::Array3i dims = ((box.sizes() / cell).array().floor() + 1).cast<int>();
+    auto cell_of = [&](const Eigen::Vector3d& p) {
+        const Eigen::Array3i c =
+            ((p - box.min()) / cell).array().floor().cast<int>().max(0).min(dims - 1);
+        return c;
+    };
+    auto cell_index = [&](const Eigen::Array3i& c) {
+        return (static_cast<std::size_t>(c.z()) * dims.y() + c.y()) * dims.x() + c.x();
+    };
+    std::vector<std::uint32_t> cell_start(static_cast<std::size_t>(dims.prod()) + 1, 0), cell_points(scene_points.size());
+    for (const auto& p : scene_points) ++cell_start[cell_index(cell_of(p)) + 1];
+    std::partial_sum(cell_start.begin(), cell_start.end(), cell_start.begin());
+    {
+        std::vector<std::uint32_t> fill(cell_start.begin(), cell_start.end() - 1);
+        for (std::size_t j = 0; j < scene_points.size(); ++j)
+            cell_points[fill[cell_index(cell_of(scene_points[j]))]++] = static_cast<std::uint32_t>(j);
+    }
+    const double reach2 = reach * reach;
 
     const int nalpha = s.alpha_bins;
     std::vector<std::size_t> refs;
@@ -178,8 +200,7 @@ std::vector<std::vector<PoseCandidate>> ppf_detect(const std::vector<const PpfMo
         std::vector<std::vector<std::uint16_t>> acc(M);
         std::vector<std::pair<std::uint16_t, std::size_t>> best(M);  // most votes per model, and where
         for (std::size_t m = 0; m < M; ++m) acc[m].resize(models[m]->size() * nalpha);
-        std::vector<int> idx;
-        std::vector<double> d2;
+        std::vector<std::uint32_t> idx;
         for (std::size_t ri = range.begin(); ri != range.end(); ++ri) {
             const std::size_t r = refs[ri];
             const Eigen::Vector3d& pr = scene_points[r];
@@ -187,9 +208,19 @@ std::vector<std::vector<PoseCandidate>> ppf_detect(const std::vector<const PpfMo
             const Eigen::Isometry3d T_sg = ppf_align_to_x(pr, nr);
             for (auto& a : acc) std::fill(a.begin(), a.end(), 0);
             for (auto& bt : best) bt = {0, 0};
-            tree.SearchRadius(pr, reach, idx, d2);
-            for (int j : idx) {
-                if (static_cast<std::size_t>(j) == r) continue;
+            idx.clear();
+            const Eigen::Array3i c = cell_of(pr);
+            for (int z = std::max(0, c.z() - 1); z <= std::min(dims.z() - 1, c.z() + 1); ++z)
+                for (int y = std::max(0, c.y() - 1); y <= std::min(dims.y() - 1, c.y() + 1); ++y)
+                    for (int x = std::max(0, c.x() - 1); x <= std::min(dims.x() - 1, c.x() + 1); ++x) {
+                        const std::size_t ci = cell_index(Eigen::Array3i(x, y, z));
+                        for (std::uint32_t q = cell_start[ci]; q < cell_start[ci + 1]; ++q) {
+                            const std::uint32_t j = cell_points[q];
+                            if ((scene_points[j] - pr).squaredNorm() <= reach2) idx.push_back(j);
+                        }
+                    }
+            for (const std::uint32_t j : idx) {
+                if (j == r) continue;
                 int db = 0;
                 const int ak = features.key(pr, nr, scene_points[j], scene_normals[j], &db);
                 if (ak < 0) continue;

@@ -18,7 +18,11 @@ struct PpfSettings {
     double coplanar_deg = 8.0;  ///< a pair whose normals and joining line are within this of coplanar is skipped
     int max_candidates = 32;    ///< pose clusters returned, most votes first
     int per_location = 2;       ///< at most this many candidates within a quarter diameter of each other
-    double bucket_cap = 8.0;    ///< features shared by more model pairs than this x the mean cast no votes
+    /// Features shared by more model pairs than this x the mean cast no votes. Measured on seed 106 (six
+    /// scans, three fiducials): with 8, three quarters of the 2.5 billion votes came from features shared by
+    /// 2-8 x the mean, and the voting took 10.2 of 28 s; with 2, 0.62 billion votes in 4.1 s, and the same
+    /// scans registered (one more, which 8 left ambiguous).
+    double bucket_cap = 2.0;
     double cluster_rotation_deg = 12.0;  ///< poses closer than this and cluster_distance join one cluster
     double cluster_distance = 0.0;       ///< (job units); 0: 2 * sampling
 };

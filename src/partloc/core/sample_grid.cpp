@@ -9,6 +9,23 @@
 
 namespace partloc {
 
+CellFrame::CellFrame(const Eigen::AlignedBox3d& box, double c, double max_cells) : origin(box.min()), cell(c) {
+    const Eigen::Vector3d size = box.sizes();
+    auto cells = [&](double k) {
+        return (std::floor(size.x() / k) + 1) * (std::floor(size.y() / k) + 1) * (std::floor(size.z() / k) + 1);
+    };
+    while (cells(cell) > max_cells) cell *= 1.25;
+    nx = static_cast<int>(std::floor(size.x() / cell)) + 1;
+    ny = static_cast<int>(std::floor(size.y() / cell)) + 1;
+    nz = static_cast<int>(std::floor(size.z() / cell)) + 1;
+}
+
+std::size_t CellFrame::clamped_index(const Eigen::Vector3d& p) const {
+    const Eigen::Vector3d f = (p - origin) / cell;
+    return index(std::clamp(static_cast<int>(f.x()), 0, nx - 1), std::clamp(static_cast<int>(f.y()), 0, ny - 1),
+                 std::clamp(static_cast<int>(f.z()), 0, nz - 1));
+}
+
 SampleGrid::SampleGrid(const std::vector<Eigen::Vector3d>& points, double spacing) {
     if (points.empty()) return;
     if (!(spacing > 0)) throw std::invalid_argument("SampleGrid: spacing must be > 0");
@@ -16,25 +33,15 @@ SampleGrid::SampleGrid(const std::vector<Eigen::Vector3d>& points, double spacin
     for (const auto& p : points) box.extend(p);
     // Cells of 1.5 spacings hold the 4-8 nearest samples of a point on the surface within the 27 around it;
     // a very large bounding box gets larger cells to keep the grid within 8 million cells.
-    const Eigen::Vector3d size = box.sizes();
-    cell_ = 1.5 * spacing;
-    auto cells = [&](double c) {
-        return (std::floor(size.x() / c) + 1) * (std::floor(size.y() / c) + 1) * (std::floor(size.z() / c) + 1);
-    };
-    while (cells(cell_) > 8.0e6) cell_ *= 1.25;
+    const CellFrame frame(box, 1.5 * spacing, 8.0e6);
+    cell_ = frame.cell;
     inv_cell_ = 1.0 / cell_;
-    origin_ = box.min();
-    nx_ = static_cast<int>(std::floor(size.x() * inv_cell_)) + 1;
-    ny_ = static_cast<int>(std::floor(size.y() * inv_cell_)) + 1;
-    nz_ = static_cast<int>(std::floor(size.z() * inv_cell_)) + 1;
-    const std::size_t n = static_cast<std::size_t>(nx_) * ny_ * nz_;
-    auto cell_of = [&](const Eigen::Vector3d& p) {
-        const Eigen::Vector3d f = (p - origin_) * inv_cell_;
-        const int x = std::clamp(static_cast<int>(f.x()), 0, nx_ - 1);
-        const int y = std::clamp(static_cast<int>(f.y()), 0, ny_ - 1);
-        const int z = std::clamp(static_cast<int>(f.z()), 0, nz_ - 1);
-        return (static_cast<std::size_t>(z) * ny_ + y) * nx_ + x;
-    };
+    origin_ = frame.origin;
+    nx_ = frame.nx;
+    ny_ = frame.ny;
+    nz_ = frame.nz;
+    const std::size_t n = frame.count();
+    auto cell_of = [&](const Eigen::Vector3d& p) { return frame.clamped_index(p); };
     start_.assign(n + 1, 0);
     std::vector<std::size_t> cell(points.size());
     for (std::size_t i = 0; i < points.size(); ++i) {

@@ -10,10 +10,26 @@
 // KDTreeFlann on the same queries: 1.8-2.1 times faster near the surface, 17-18 times for points far from it
 // (BENCHMARK.md); tests/test_surface.cpp checks that it returns exactly what the KD-tree returns.
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 #include <cstdint>
 #include <vector>
 
 namespace partloc {
+
+/// Cubic cells over a box: the frame shared by the grids of core (this one, NearestMap, RadiusGrid).
+struct CellFrame {
+    Eigen::Vector3d origin = Eigen::Vector3d::Zero();
+    double cell = 1.0;
+    int nx = 0, ny = 0, nz = 0;
+    CellFrame() = default;
+    /// Cells of `cell` from box.min() to past box.max(); larger (by steps of 1.25) while they would number
+    /// more than `max_cells`.
+    CellFrame(const Eigen::AlignedBox3d& box, double cell, double max_cells);
+    std::size_t count() const { return static_cast<std::size_t>(nx) * ny * nz; }
+    std::size_t index(int x, int y, int z) const { return (static_cast<std::size_t>(z) * ny + y) * nx + x; }
+    /// The cell holding p, clamped into the frame.
+    std::size_t clamped_index(const Eigen::Vector3d& p) const;
+};
 
 class SampleGrid {
 public:

@@ -20,6 +20,10 @@ int Surface::nearest(const Eigen::Vector3d& p, double* squared_distance, double 
     return idx;
 }
 
+void add_coarse_map(Surface& surface, double cell, double reach) {
+    surface.coarse = std::make_shared<const NearestMap>(surface.points, cell, reach);
+}
+
 Surface make_surface(std::shared_ptr<open3d::geometry::PointCloud> cloud, double spacing) {
     if (!cloud->HasNormals()) throw std::invalid_argument("surface samples need normals");
     Surface s;

@@ -9,6 +9,7 @@
 #include <memory>
 #include <vector>
 
+#include "partloc/core/nearest_map.hpp"
 #include "partloc/core/sample_grid.hpp"
 
 namespace partloc {
@@ -20,6 +21,9 @@ struct Surface {
     std::shared_ptr<open3d::geometry::PointCloud> cloud;  ///< the same points, for Open3D calls
     std::shared_ptr<open3d::geometry::KDTreeFlann> tree;
     SampleGrid grid;  ///< the fast exact search the fits use (sample_grid.hpp)
+    /// Approximate search for the coarse stages of a fit (nearest_map.hpp); null unless add_coarse_map ran.
+    /// Shared by copies of the surface, which keep the same samples.
+    std::shared_ptr<const NearestMap> coarse;
     Eigen::Vector3d center = Eigen::Vector3d::Zero();  ///< centre of the bounding box
     double diameter = 0.0;                             ///< bounding-box diagonal (job units)
     double spacing = 0.0;                              ///< typical distance between samples (job units)
@@ -29,6 +33,9 @@ struct Surface {
     int nearest(const Eigen::Vector3d& p, double* squared_distance,
                 double max_distance = std::numeric_limits<double>::infinity()) const;
 };
+
+/// Gives `surface` an approximate search (Surface::coarse) with cells of `cell`, answering within `reach`.
+void add_coarse_map(Surface& surface, double cell, double reach);
 
 /// Builds a Surface from points that carry normals (throws std::invalid_argument without normals).
 Surface make_surface(std::shared_ptr<open3d::geometry::PointCloud> cloud, double spacing);
