@@ -8,6 +8,7 @@
 #include <stdexcept>
 
 #include "partloc/core/geometry.hpp"
+#include "partloc/core/sample_grid.hpp"
 
 namespace partloc {
 
@@ -163,25 +164,15 @@ std::vector<std::vector<PoseCandidate>> ppf_detect(const std::vector<const PpfMo
     // every reference's 2000 or so partners (about 5 % of a job's time, perf on seed 106).
     Eigen::AlignedBox3d box;
     for (const auto& p : scene_points) box.extend(p);
-    // Cells of at least the reach; larger when far outliers stretch the box (at most about 2 million cells).
-    double cell = std::max(reach, 1e-9);
-    while (((box.sizes() / cell).array().floor() + 1).prod() > 2.0e6) cell *= 2.0;
-    const Eigen::Array3i dims = ((box.sizes() / cell).array().floor() + 1).cast<int>();
-    auto cell_of = [&](const Eigen::Vector3d& p) {
-        const Eigen::Array3i c =
-            ((p - box.min()) / cell).array().floor().cast<int>().max(0).min(dims - 1);
-        return c;
-    };
-    auto cell_index = [&](const Eigen::Array3i& c) {
-        return (static_cast<std::size_t>(c.z()) * dims.y() + c.y()) * dims.x() + c.x();
-    };
-    std::vector<std::uint32_t> cell_start(static_cast<std::size_t>(dims.prod()) + 1, 0), cell_points(scene_points.size());
-    for (const auto& p : scene_points) ++cell_start[cell_index(cell_of(p)) + 1];
+    // Cells of at least the reach; larger when far outliers stretch the box (at most 2 million cells).
+    const CellFrame frame(box, std::max(reach, 1e-9), 2.0e6);
+    std::vector<std::uint32_t> cell_start(frame.count() + 1, 0), cell_points(scene_points.size());
+    for (const auto& p : scene_points) ++cell_start[frame.clamped_index(p) + 1];
     std::partial_sum(cell_start.begin(), cell_start.end(), cell_start.begin());
     {
         std::vector<std::uint32_t> fill(cell_start.begin(), cell_start.end() - 1);
         for (std::size_t j = 0; j < scene_points.size(); ++j)
-            cell_points[fill[cell_index(cell_of(scene_points[j]))]++] = static_cast<std::uint32_t>(j);
+            cell_points[fill[frame.clamped_index(scene_points[j])]++] = static_cast<std::uint32_t>(j);
     }
     const double reach2 = reach * reach;
 
@@ -209,11 +200,11 @@ std::vector<std::vector<PoseCandidate>> ppf_detect(const std::vector<const PpfMo
             for (auto& a : acc) std::fill(a.begin(), a.end(), 0);
             for (auto& bt : best) bt = {0, 0};
             idx.clear();
-            const Eigen::Array3i c = cell_of(pr);
-            for (int z = std::max(0, c.z() - 1); z <= std::min(dims.z() - 1, c.z() + 1); ++z)
-                for (int y = std::max(0, c.y() - 1); y <= std::min(dims.y() - 1, c.y() + 1); ++y)
-                    for (int x = std::max(0, c.x() - 1); x <= std::min(dims.x() - 1, c.x() + 1); ++x) {
-                        const std::size_t ci = cell_index(Eigen::Array3i(x, y, z));
+            const Eigen::Array3i c = frame.clamped_cell(pr);
+            for (int z = std::max(0, c.z() - 1); z <= std::min(frame.nz - 1, c.z() + 1); ++z)
+                for (int y = std::max(0, c.y() - 1); y <= std::min(frame.ny - 1, c.y() + 1); ++y)
+                    for (int x = std::max(0, c.x() - 1); x <= std::min(frame.nx - 1, c.x() + 1); ++x) {
+                        const std::size_t ci = frame.index(x, y, z);
                         for (std::uint32_t q = cell_start[ci]; q < cell_start[ci + 1]; ++q) {
                             const std::uint32_t j = cell_points[q];
                             if ((scene_points[j] - pr).squaredNorm() <= reach2) idx.push_back(j);

@@ -20,10 +20,10 @@ CellFrame::CellFrame(const Eigen::AlignedBox3d& box, double c, double max_cells)
     nz = static_cast<int>(std::floor(size.z() / cell)) + 1;
 }
 
-std::size_t CellFrame::clamped_index(const Eigen::Vector3d& p) const {
+Eigen::Array3i CellFrame::clamped_cell(const Eigen::Vector3d& p) const {
     const Eigen::Vector3d f = (p - origin) / cell;
-    return index(std::clamp(static_cast<int>(f.x()), 0, nx - 1), std::clamp(static_cast<int>(f.y()), 0, ny - 1),
-                 std::clamp(static_cast<int>(f.z()), 0, nz - 1));
+    return {std::clamp(static_cast<int>(f.x()), 0, nx - 1), std::clamp(static_cast<int>(f.y()), 0, ny - 1),
+            std::clamp(static_cast<int>(f.z()), 0, nz - 1)};
 }
 
 SampleGrid::SampleGrid(const std::vector<Eigen::Vector3d>& points, double spacing) {

@@ -27,8 +27,12 @@ struct CellFrame {
     CellFrame(const Eigen::AlignedBox3d& box, double cell, double max_cells);
     std::size_t count() const { return static_cast<std::size_t>(nx) * ny * nz; }
     std::size_t index(int x, int y, int z) const { return (static_cast<std::size_t>(z) * ny + y) * nx + x; }
-    /// The cell holding p, clamped into the frame.
-    std::size_t clamped_index(const Eigen::Vector3d& p) const;
+    /// The cell holding p, clamped into the frame: its coordinates, and its index.
+    Eigen::Array3i clamped_cell(const Eigen::Vector3d& p) const;
+    std::size_t clamped_index(const Eigen::Vector3d& p) const {
+        const Eigen::Array3i c = clamped_cell(p);
+        return index(c.x(), c.y(), c.z());
+    }
 };
 
 class SampleGrid {
