@@ -80,4 +80,16 @@ PoseError pose_error(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b) {
     return {(a.translation() - b.translation()).norm(), rotation_angle_deg(a.linear().transpose() * b.linear())};
 }
 
+Eigen::Matrix3d skew(const Eigen::Vector3d& v) {
+    Eigen::Matrix3d m;
+    m << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
+    return m;
+}
+
+Eigen::Matrix3d shift_covariance_at(const Matrix6d& twist_cov, const Eigen::Vector3d& p) {
+    Eigen::Matrix<double, 3, 6> J;  // shift at p = v + w x p = -[p]x w + v
+    J << -skew(p), Eigen::Matrix3d::Identity();
+    return J * twist_cov * J.transpose();
+}
+
 }  // namespace partloc

@@ -41,4 +41,11 @@ struct PoseError {
 };
 PoseError pose_error(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b);
 
+/// [v]x: [v]x w = v x w.
+Eigen::Matrix3d skew(const Eigen::Vector3d& v);
+
+/// Covariance of the shift of point p (v + w x p) under a small motion with twist covariance `twist_cov`
+/// (twist [w, v] about the origin).
+Eigen::Matrix3d shift_covariance_at(const Matrix6d& twist_cov, const Eigen::Vector3d& p);
+
 }  // namespace partloc

@@ -16,6 +16,8 @@ std::shared_ptr<open3d::geometry::TriangleMesh> build_stock(const open3d::geomet
     // Octree depth so that a cell is about two point spacings, within Open3D's practical range.
     const double cells = extent / std::max(2.0 * st.spacing, extent / 512.0);
     const int depth = std::clamp(static_cast<int>(std::ceil(std::log2(std::max(cells, 2.0)))), 5, 9);
+    // One thread: with Open3D's own threads (-1) the mesh differed from run to run of the same job, and the
+    // job took longer (seed 106 on 2 cores: 8.7-9.0 s against 7.3 s, measured at bc8e269).
     auto [mesh, density] = open3d::geometry::TriangleMesh::CreateFromPointCloudPoisson(points, depth, 0, 1.1f, false, 1);
     if (!mesh || mesh->vertices_.empty()) return empty;
     std::vector<double> sorted = density;

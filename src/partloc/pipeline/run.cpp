@@ -57,11 +57,7 @@ double sigma_at(const Matrix6d& information, const Eigen::Vector3d& a) {
     for (int k = 0; k < 6; ++k)
         if (es.eigenvalues()(k) > 1e-12 * es.eigenvalues()(5)) inv(k) = 1.0 / es.eigenvalues()(k);
     const Matrix6d cov = es.eigenvectors() * inv.asDiagonal() * es.eigenvectors().transpose();
-    Eigen::Matrix<double, 3, 6> J;  // shift at a = v + w x a
-    J << 0, a.z(), -a.y(), 1, 0, 0,  //
-        -a.z(), 0, a.x(), 0, 1, 0,   //
-        a.y(), -a.x(), 0, 0, 0, 1;
-    const Eigen::Matrix3d c = J * cov * J.transpose();
+    const Eigen::Matrix3d c = shift_covariance_at(cov, a);
     return std::sqrt(std::max(0.0, Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(c).eigenvalues()(2)));
 }
 
@@ -520,8 +516,10 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     });
 
     // The part (§3.4.2): merge, clean, fit the reference surfaces.
-    std::shared_ptr<open3d::geometry::PointCloud> merged;
-    std::size_t registered = 0;
+    const auto registered_count = [&] {
+        return std::count_if(result.scans.begin(), result.scans.end(),
+                             [](const ScanResult& r) { return r.registered; });
+    };
     // The fit needs no more than a hundred thousand points or so: the registered scans' points are thinned by
     // their order, never by their position. A voxel grid picks or averages points by where they fall in
     // it, and on a face nearly parallel to its planes (a part squared to the machine) that depends on the
@@ -530,34 +528,34 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     // in_fit: the scans in the part's fit; a registered scan whose registration is too uncertain at the part
     // is left out of it (below), but not out of merged.ply and the stock.
     std::vector<char> in_fit(job.scans.size(), 1);
-    const auto merge_registered = [&] {
-        merged = std::make_shared<open3d::geometry::PointCloud>();
-        registered = 0;
+    // The registered scans' workpiece points (only those of the scans in the part's fit when fit_only),
+    // thinned by their order to at most kMergedPoints, statistical outliers removed.
+    const auto merge_registered = [&](bool fit_only) {
+        auto m = std::make_shared<open3d::geometry::PointCloud>();
+        const auto taken = [&](std::size_t i) { return result.scans[i].registered && (!fit_only || in_fit[i]); };
         std::size_t total = 0;
         for (std::size_t i = 0; i < job.scans.size(); ++i)
-            if (result.scans[i].registered && in_fit[i]) total += work[i].workpiece_points->points_.size();
+            if (taken(i)) total += work[i].workpiece_points->points_.size();
         const std::size_t stride = std::max<std::size_t>(1, (total + kMergedPoints - 1) / kMergedPoints);
         std::size_t at = 0;  // index into the concatenation, so that the stride runs on across scans
         for (std::size_t i = 0; i < job.scans.size(); ++i) {
-            if (!result.scans[i].registered) continue;
-            ++registered;
-            if (!in_fit[i]) continue;
+            if (!taken(i)) continue;
             const auto& c = *work[i].workpiece_points;
             for (std::size_t k = 0; k < c.points_.size(); ++k, ++at) {
                 if (at % stride) continue;
-                merged->points_.push_back(c.points_[k]);
-                if (c.HasNormals()) merged->normals_.push_back(c.normals_[k]);
+                m->points_.push_back(c.points_[k]);
+                if (c.HasNormals()) m->normals_.push_back(c.normals_[k]);
             }
         }
-        if (merged->normals_.size() != merged->points_.size()) merged->normals_.clear();
-        if (registered == 0) return;
-        if (merged->points_.size() > 30) merged = std::get<0>(merged->RemoveStatisticalOutliers(20, 2.5));
+        if (m->normals_.size() != m->points_.size()) m->normals_.clear();
+        if (m->points_.size() > 30) m = std::get<0>(m->RemoveStatisticalOutliers(20, 2.5));
+        return m;
     };
-    merge_registered();
+    auto merged = merge_registered(true);
     WorkpieceResult& w = result.workpiece;
     w.T_machine_workpiece_nominal = job.workpiece.T_machine_workpiece;
     w.fit = job.workpiece.fit == WorkpieceFitMode::Datums ? "datums" : "simultaneous";
-    if (registered == 0) {
+    if (registered_count() == 0) {
         w.message = "no scan could be registered to the machine";
         result.seconds = seconds_since(t0);
         return result;
@@ -618,8 +616,8 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         loose = true;
     }
     if (loose) {
-        merge_registered();
-        if (registered == 0) {
+        merged = merge_registered(true);
+        if (registered_count() == 0) {
             w.message = "no scan could be registered to the machine";
             result.seconds = seconds_since(t0);
             return result;
@@ -636,13 +634,13 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         (in_fit[i] ? kept : left_out) += 1;
     }
     if (kept == 0) std::fill(in_fit.begin(), in_fit.end(), 1);
-    if (kept && left_out) merge_registered();
+    if (kept && left_out) merged = merge_registered(true);
     WorkpieceFit fit = fit_reference_surfaces(merged->points_, reference, wfs,
                                               merged->HasNormals() ? &merged->normals_ : nullptr);
     if (kept && left_out && !fit.ok) {
         // The others alone do not locate the part: all of them, then.
         std::fill(in_fit.begin(), in_fit.end(), 1);
-        merge_registered();
+        merged = merge_registered(true);
         fit = fit_reference_surfaces(merged->points_, reference, wfs,
                                      merged->HasNormals() ? &merged->normals_ : nullptr);
     }
@@ -655,8 +653,8 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         bool any_in_fit = false;
         for (std::size_t i = 0; i < job.scans.size(); ++i) any_in_fit |= result.scans[i].registered && in_fit[i];
         if (!any_in_fit) std::fill(in_fit.begin(), in_fit.end(), 1);
-        merge_registered();
-        if (registered == 0) {
+        merged = merge_registered(true);
+        if (registered_count() == 0) {
             w.message = "no scan could be registered to the machine: the part confirms none of them";
             result.seconds = seconds_since(t0);
             return result;
@@ -672,17 +670,8 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
                 fmt("left out of the part's fit: its registration leaves the part uncertain by %.3g (1 sigma), "
                     "more than %.3g",
                     reg_sigma[i], sigma_limit));
-    if (std::count(in_fit.begin(), in_fit.end(), 0)) {
-        const auto fitted = merged;
-        const auto chosen = in_fit;
-        std::fill(in_fit.begin(), in_fit.end(), 1);
-        merge_registered();
-        result.merged = merged->VoxelDownSample(spacing);
-        merged = fitted;
-        in_fit = chosen;
-    } else {
-        result.merged = merged->VoxelDownSample(spacing);
-    }
+    const bool all_in_fit = std::count(in_fit.begin(), in_fit.end(), 0) == 0;
+    result.merged = (all_in_fit ? merged : merge_registered(false))->VoxelDownSample(spacing);
     w.rmse = fit.rmse;
     w.points = merged->points_.size();
     w.inliers = fit.inliers;

@@ -23,13 +23,6 @@ Eigen::Vector3d euler_difference(const Eigen::Vector3d& a, const Eigen::Vector3d
 }
 
 
-/// [v]x: [v]x w = v x w.
-Eigen::Matrix3d skew(const Eigen::Vector3d& v) {
-    Eigen::Matrix3d m;
-    m << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
-    return m;
-}
-
 /// The adjoint of a rigid motion on twists [w, v] about the origin: the same motion of space, seen after T.
 Matrix6d adjoint(const Eigen::Isometry3d& T) {
     const Eigen::Matrix3d R = T.linear();
@@ -42,9 +35,7 @@ Matrix6d adjoint(const Eigen::Isometry3d& T) {
 
 /// 1-sigma of the shift at point p, per axis, and of the turn in degrees, from a twist covariance.
 std::pair<Eigen::Vector3d, Eigen::Vector3d> sigmas_at(const Eigen::Vector3d& p, const Matrix6d& cov) {
-    Eigen::Matrix<double, 3, 6> J;  // shift at p = v + w x p
-    J << -skew(p), Eigen::Matrix3d::Identity();
-    return {(J * cov * J.transpose()).diagonal().cwiseMax(0.0).cwiseSqrt(),
+    return {shift_covariance_at(cov, p).diagonal().cwiseMax(0.0).cwiseSqrt(),
             cov.topLeftCorner<3, 3>().diagonal().cwiseMax(0.0).cwiseSqrt() * 180.0 / M_PI};
 }
 
