@@ -15,6 +15,8 @@
 #include <cstdint>
 #include <vector>
 
+#include "partloc/core/sample_grid.hpp"
+
 
 namespace partloc {
 
@@ -28,13 +30,12 @@ public:
     /// sample), or -1. Thread-safe (read only).
     int nearest(const Eigen::Vector3d& p) const;
 
-    double cell_size() const { return cell_; }
+    double cell_size() const { return frame_.cell; }
     double reach() const { return reach_; }
 
 private:
-    Eigen::Vector3d origin_ = Eigen::Vector3d::Zero();
-    double cell_ = 1.0, inv_cell_ = 1.0, reach_ = 0.0;
-    int nx_ = 0, ny_ = 0, nz_ = 0;
+    CellFrame frame_;
+    double reach_ = 0.0;
     std::vector<std::int32_t> nearest_;  // per cell; -1: none within reach
 };
 

@@ -166,14 +166,7 @@ std::vector<std::vector<PoseCandidate>> ppf_detect(const std::vector<const PpfMo
     for (const auto& p : scene_points) box.extend(p);
     // Cells of at least the reach; larger when far outliers stretch the box (at most 2 million cells).
     const CellFrame frame(box, std::max(reach, 1e-9), 2.0e6);
-    std::vector<std::uint32_t> cell_start(frame.count() + 1, 0), cell_points(scene_points.size());
-    for (const auto& p : scene_points) ++cell_start[frame.clamped_index(p) + 1];
-    std::partial_sum(cell_start.begin(), cell_start.end(), cell_start.begin());
-    {
-        std::vector<std::uint32_t> fill(cell_start.begin(), cell_start.end() - 1);
-        for (std::size_t j = 0; j < scene_points.size(); ++j)
-            cell_points[fill[frame.clamped_index(scene_points[j])]++] = static_cast<std::uint32_t>(j);
-    }
+    const CellBuckets cells = bucket_by_cell(frame, scene_points);
     const double reach2 = reach * reach;
 
     const int nalpha = s.alpha_bins;
@@ -205,8 +198,8 @@ std::vector<std::vector<PoseCandidate>> ppf_detect(const std::vector<const PpfMo
                 for (int y = std::max(0, c.y() - 1); y <= std::min(frame.ny - 1, c.y() + 1); ++y)
                     for (int x = std::max(0, c.x() - 1); x <= std::min(frame.nx - 1, c.x() + 1); ++x) {
                         const std::size_t ci = frame.index(x, y, z);
-                        for (std::uint32_t q = cell_start[ci]; q < cell_start[ci + 1]; ++q) {
-                            const std::uint32_t j = cell_points[q];
+                        for (std::uint32_t q = cells.start[ci]; q < cells.start[ci + 1]; ++q) {
+                            const std::uint32_t j = cells.order[q];
                             if ((scene_points[j] - pr).squaredNorm() <= reach2) idx.push_back(j);
                         }
                     }

@@ -9,6 +9,8 @@
 #include <cstdint>
 #include <vector>
 
+#include "partloc/core/sample_grid.hpp"
+
 namespace partloc {
 
 class RadiusGrid {
@@ -26,9 +28,7 @@ public:
 private:
     std::vector<Eigen::Vector3d> points_;  // in cell order
     std::vector<std::uint32_t> index_;     // their indices in the caller's array
-    Eigen::Vector3d origin_ = Eigen::Vector3d::Zero();
-    double cell_ = 1.0;
-    int nx_ = 0, ny_ = 0, nz_ = 0;
+    CellFrame frame_;
     std::vector<std::uint32_t> start_;  // points of cell c: [start_[c], start_[c+1])
 };
 

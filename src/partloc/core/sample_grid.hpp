@@ -19,7 +19,7 @@ namespace partloc {
 /// Cubic cells over a box: the frame shared by the grids of core (this one, NearestMap, RadiusGrid).
 struct CellFrame {
     Eigen::Vector3d origin = Eigen::Vector3d::Zero();
-    double cell = 1.0;
+    double cell = 1.0, inv_cell = 1.0;
     int nx = 0, ny = 0, nz = 0;
     CellFrame() = default;
     /// Cells of `cell` from box.min() to past box.max(); larger (by steps of 1.25) while they would number
@@ -27,6 +27,12 @@ struct CellFrame {
     CellFrame(const Eigen::AlignedBox3d& box, double cell, double max_cells);
     std::size_t count() const { return static_cast<std::size_t>(nx) * ny * nz; }
     std::size_t index(int x, int y, int z) const { return (static_cast<std::size_t>(z) * ny + y) * nx + x; }
+    /// The coordinates of cell index c.
+    Eigen::Array3i coordinates(std::size_t c) const {
+        return {static_cast<int>(c % nx), static_cast<int>((c / nx) % ny),
+                static_cast<int>(c / (static_cast<std::size_t>(nx) * ny))};
+    }
+    bool contains(int x, int y, int z) const { return x >= 0 && y >= 0 && z >= 0 && x < nx && y < ny && z < nz; }
     /// The cell holding p, clamped into the frame: its coordinates, and its index.
     Eigen::Array3i clamped_cell(const Eigen::Vector3d& p) const;
     std::size_t clamped_index(const Eigen::Vector3d& p) const {
@@ -34,6 +40,13 @@ struct CellFrame {
         return index(c.x(), c.y(), c.z());
     }
 };
+
+/// Points sorted by the cell that holds them (clamped into the frame), CSR: the points of cell c are
+/// order[start[c]], ..., order[start[c + 1] - 1], indices into the caller's array, in its order.
+struct CellBuckets {
+    std::vector<std::uint32_t> start, order;
+};
+CellBuckets bucket_by_cell(const CellFrame& frame, const std::vector<Eigen::Vector3d>& points);
 
 class SampleGrid {
 public:
@@ -48,15 +61,13 @@ public:
     /// squared distances. Returns how many were found.
     int nearest(const Eigen::Vector3d& p, int k, double max_distance, int* indices, double* squared_distances) const;
 
-    double cell_size() const { return cell_; }
+    double cell_size() const { return frame_.cell; }
     bool empty() const { return points_.empty(); }
 
 private:
     std::vector<Eigen::Vector3d> points_;  // the samples in cell order (a copy: the grid can be copied freely)
     std::vector<std::uint32_t> index_;     // their indices in the caller's array
-    Eigen::Vector3d origin_ = Eigen::Vector3d::Zero();
-    double cell_ = 1.0, inv_cell_ = 1.0;
-    int nx_ = 0, ny_ = 0, nz_ = 0;
+    CellFrame frame_;
     std::vector<std::uint32_t> start_;    // CSR over cells: samples of cell c are points_[start_[c], start_[c+1])
     std::vector<std::uint8_t> distance_;  // Chebyshev distance, in cells, to the nearest occupied cell (capped)
 };
