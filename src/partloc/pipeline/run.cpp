@@ -555,11 +555,13 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     WorkpieceResult& w = result.workpiece;
     w.T_machine_workpiece_nominal = job.workpiece.T_machine_workpiece;
     w.fit = job.workpiece.fit == WorkpieceFitMode::Datums ? "datums" : "simultaneous";
-    if (registered_count() == 0) {
-        w.message = "no scan could be registered to the machine";
+    // The part not located, and why: the result as it stands, timed (the caller returns it at once).
+    const auto not_located = [&](std::string why) {
+        w.message = std::move(why);
         result.seconds = seconds_since(t0);
-        return result;
-    }
+        return std::move(result);
+    };
+    if (registered_count() == 0) return not_located("no scan could be registered to the machine");
 
     const auto& ref = job.workpiece.reference_surfaces;
     const double ref_d = bounding_box(ref).diagonal().norm();
@@ -576,11 +578,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         return samples;
     };
     const auto ref_samples = oriented_samples(ref);
-    if (!ref_samples) {
-        w.message = "the reference surfaces are empty";
-        result.seconds = seconds_since(t0);
-        return result;
-    }
+    if (!ref_samples) return not_located("the reference surfaces are empty");
     const Surface reference = make_surface(ref_samples, ref_spacing);
     std::vector<double> noises;
     for (const auto& s : result.scans)
@@ -617,11 +615,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     }
     if (loose) {
         merged = merge_registered(true);
-        if (registered_count() == 0) {
-            w.message = "no scan could be registered to the machine";
-            result.seconds = seconds_since(t0);
-            return result;
-        }
+        if (registered_count() == 0) return not_located("no scan could be registered to the machine");
     }
     std::vector<double> sigmas;  // of the scans still registered
     for (std::size_t i = 0; i < job.scans.size(); ++i)
@@ -655,9 +649,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         if (!any_in_fit) std::fill(in_fit.begin(), in_fit.end(), 1);
         merged = merge_registered(true);
         if (registered_count() == 0) {
-            w.message = "no scan could be registered to the machine: the part confirms none of them";
-            result.seconds = seconds_since(t0);
-            return result;
+            return not_located("no scan could be registered to the machine: the part confirms none of them");
         }
         fit = fit_reference_surfaces(merged->points_, reference, wfs,
                                      merged->HasNormals() ? &merged->normals_ : nullptr);
@@ -676,11 +668,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     w.points = merged->points_.size();
     w.inliers = fit.inliers;
     w.information = fit.JtJ / std::max(wfs.noise * wfs.noise, 1e-30);
-    if (!fit.ok) {
-        w.message = fit.reason;
-        result.seconds = seconds_since(t0);
-        return result;
-    }
+    if (!fit.ok) return not_located(fit.reason);
     // The datum hierarchy (3-2-1), from the simultaneous fit's pose; or, for a simultaneous fit, each
     // datum's residual there.
     Eigen::Isometry3d T_correction = fit.T_correction;
@@ -690,11 +678,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         std::vector<DatumSurface>& datums = datum_surfaces;
         for (const auto& d : job.workpiece.datums) {
             const auto samples = oriented_samples(d.surfaces);
-            if (!samples) {
-                w.message = "datum " + d.name + ": its surfaces are empty";
-                result.seconds = seconds_since(t0);
-                return result;
-            }
+            if (!samples) return not_located("datum " + d.name + ": its surfaces are empty");
             datums.push_back({d.name, make_surface(samples, ref_spacing)});
         }
         DatumFitSettings& ds = datum_settings;
@@ -703,11 +687,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         if (job.workpiece.fit == WorkpieceFitMode::Datums) {
             const DatumFit df = fit_datums(merged->points_, datums, fit.T_correction, ds);
             w.datums = df.datums;
-            if (!df.ok) {
-                w.message = df.reason;
-                result.seconds = seconds_since(t0);
-                return result;
-            }
+            if (!df.ok) return not_located(df.reason);
             T_correction = df.T_correction;
             w.rmse = df.rmse;
             w.inliers = df.inliers;
