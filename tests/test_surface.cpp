@@ -212,3 +212,52 @@ TEST(RadiusGrid, SamePointsAsTheKdTreesRadiusSearch) {
     empty.within(Eigen::Vector3d::Zero(), 10.0, none);
     EXPECT_TRUE(none.empty());
 }
+
+// A composed surface (the fiducials at their machine poses) answers what one grid over all their samples
+// answers: the same k nearest, in the same order, at the same distances.
+TEST(ComposedSurface, AnswersWhatOneGridOverAllTheSamplesAnswers) {
+    open3d::geometry::TriangleMesh box = *open3d::geometry::TriangleMesh::CreateBox(40, 25, 10);
+    open3d::geometry::TriangleMesh cyl = *open3d::geometry::TriangleMesh::CreateCylinder(8, 30, 40, 4);
+    const Surface a = make_surface(sample_mesh(box, 0.5), 0.5);
+    const Surface b = make_surface(sample_mesh(cyl, 0.6), 0.6);
+    std::vector<Eigen::Isometry3d> poses(3, Eigen::Isometry3d::Identity());
+    poses[0].translation() = Eigen::Vector3d(-300, 20, 5);
+    poses[1].linear() = Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
+    poses[1].translation() = Eigen::Vector3d(250, -80, 40);
+    // The third close to the first, so that some queries have neighbours on both.
+    poses[2].linear() = Eigen::AngleAxisd(-0.3, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+    poses[2].translation() = Eigen::Vector3d(-290, 20, 20);
+    const Surface composed = compose_surfaces({&a, &b, &a}, poses);
+    ASSERT_EQ(composed.points.size(), 2 * a.points.size() + b.points.size());
+    auto cloud = std::make_shared<open3d::geometry::PointCloud>();
+    cloud->points_ = composed.points;
+    cloud->normals_ = composed.normals;
+    const Surface whole = make_surface(cloud, 0.5);
+    std::mt19937_64 rng(5);
+    std::uniform_int_distribution<std::size_t> pick(0, composed.points.size() - 1);
+    std::normal_distribution<double> g(0.0, 1.5);
+    std::uniform_real_distribution<double> u(-400, 400);
+    int found_some = 0;
+    for (int q = 0; q < 6000; ++q) {
+        const Eigen::Vector3d p = q % 3 ? Eigen::Vector3d(composed.points[pick(rng)] + Eigen::Vector3d(g(rng), g(rng), g(rng)))
+                                        : Eigen::Vector3d(u(rng), u(rng), u(rng));
+        const int k = 1 + q % 6;
+        const double bound = q % 2 ? 2.0 : 1e30;
+        int ia[SampleGrid::kMaxK], ib[SampleGrid::kMaxK];
+        double da[SampleGrid::kMaxK], db[SampleGrid::kMaxK];
+        const int na = composed.nearest(p, k, bound, ia, da);
+        const int nb = whole.nearest(p, k, bound, ib, db);
+        ASSERT_EQ(na, nb) << "query " << q;
+        for (int j = 0; j < na; ++j) {
+            // Distances agree to rounding (the composed surface measures in each part's frame).
+            EXPECT_NEAR(da[j], db[j], 1e-9) << "query " << q << " neighbour " << j;
+            // The same sample, unless two lie at the same distance.
+            if (j + 1 < na && std::abs(db[j + 1] - db[j]) < 1e-9) continue;
+            if (j > 0 && std::abs(db[j] - db[j - 1]) < 1e-9) continue;
+            EXPECT_EQ(ia[j], ib[j]) << "query " << q << " neighbour " << j;
+            EXPECT_NEAR((composed.points[ia[j]] - p).squaredNorm(), da[j], 1e-9);
+        }
+        found_some += na > 0;
+    }
+    EXPECT_GT(found_some, 3000);
+}

@@ -42,18 +42,19 @@ struct Match {
     Eigen::Vector3d n = Eigen::Vector3d::Zero();
 };
 
-Match match(const Eigen::Vector3d& q, const std::vector<DatumSurface>& datums, double max_distance,
-            std::vector<int>& idx, std::vector<double>& d2) {
+Match match(const Eigen::Vector3d& q, const std::vector<DatumSurface>& datums, double max_distance) {
     Match m;
-    const double max_d2 = max_distance * max_distance;
+    int idx[4];
+    double d2[4];
     for (std::size_t k = 0; k < datums.size(); ++k) {
         const Surface& s = datums[k].surface;
-        if (s.tree->SearchKNN(q, 4, idx, d2) < 1 || d2[0] > max_d2) continue;
+        const int found = s.nearest(q, 4, max_distance, idx, d2);
+        if (found < 1) continue;
         if (m.datum >= 0) return {};  // near two datums: a point at their edge belongs to neither for sure
         // Of the nearest samples, the one whose tangent plane is nearest (as in icp.cpp).
         int best = idx[0];
         double r = (q - s.points[best]).dot(s.normals[best]);
-        for (std::size_t j = 1; j < idx.size() && d2[j] <= max_d2; ++j) {
+        for (int j = 1; j < found; ++j) {
             const double rj = (q - s.points[idx[j]]).dot(s.normals[idx[j]]);
             if (std::abs(rj) < std::abs(r)) {
                 r = rj;
@@ -75,11 +76,9 @@ Systems accumulate(const std::vector<Eigen::Vector3d>& pts, const std::vector<Da
     return tbb::parallel_reduce(
         tbb::blocked_range<std::size_t>(0, pts.size(), 512), Systems(datums.size()),
         [&](const tbb::blocked_range<std::size_t>& range, Systems acc) {
-            std::vector<int> idx;
-            std::vector<double> d2;
             for (std::size_t i = range.begin(); i != range.end(); ++i) {
                 const Eigen::Vector3d q = T * pts[i];
-                const Match m = match(q, datums, max_distance, idx, d2);
+                const Match m = match(q, datums, max_distance);
                 if (m.datum < 0) continue;
                 double w = 1.0;
                 if (weighted) {
@@ -203,7 +202,7 @@ DatumFit fit_datums(const std::vector<Eigen::Vector3d>& merged, const std::vecto
         return fit;
     }
     for (const auto& d : datums)
-        if (d.surface.points.empty() || !d.surface.tree) {
+        if (d.surface.points.empty()) {
             fit.reason = "datum " + d.name + " has no surface";
             return fit;
         }
@@ -215,13 +214,10 @@ DatumFit fit_datums(const std::vector<Eigen::Vector3d>& merged, const std::vecto
     Eigen::Isometry3d T = T_correction_start.inverse();  // merged points -> nominal
     std::vector<Eigen::Vector3d> near;
     {
-        std::vector<int> idx;
-        std::vector<double> d2;
-        const double reach2 = std::pow(1.5 * stages.front(), 2);
         for (const auto& p : merged) {
             const Eigen::Vector3d q = T * p;
             for (const auto& d : datums)
-                if (d.surface.tree->SearchKNN(q, 1, idx, d2) > 0 && d2[0] <= reach2) {
+                if (d.surface.nearest(q, nullptr, 1.5 * stages.front()) >= 0) {
                     near.push_back(p);
                     break;
                 }

@@ -47,7 +47,7 @@ Normal accumulate(const std::vector<Eigen::Vector3d>& source, const Surface& tar
                 // Of the nearest samples, the one whose tangent plane is nearest: at an edge the nearest
                 // sample may lie on the other face, and its plane would pull the fit sideways.
                 const int found =
-                    approximate ? coarse_nearest(p, idx, d2) : target.grid.nearest(p, 4, max_distance, idx, d2);
+                    approximate ? coarse_nearest(p, idx, d2) : target.nearest(p, 4, max_distance, idx, d2);
                 if (found < 1) continue;
                 int k = -1;
                 double r = 0.0;

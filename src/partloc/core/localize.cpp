@@ -354,18 +354,10 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
 
 Surface make_pose_target(const std::vector<const PreparedModel*>& models,
                          const std::vector<Eigen::Isometry3d>& T_machine_model) {
-    auto cloud = std::make_shared<open3d::geometry::PointCloud>();
-    double spacing = std::numeric_limits<double>::infinity();
-    for (std::size_t g = 0; g < models.size() && g < T_machine_model.size(); ++g) {
-        const PreparedModel& m = *models[g];
-        spacing = std::min(spacing, m.dense.spacing);
-        const Eigen::Isometry3d& F = T_machine_model[g];
-        for (std::size_t i = 0; i < m.dense.points.size(); ++i) {
-            cloud->points_.push_back(F * m.dense.points[i]);
-            cloud->normals_.push_back(F.linear() * m.dense.normals[i]);
-        }
-    }
-    return make_surface(cloud, spacing);
+    std::vector<const Surface*> parts;
+    for (const PreparedModel* m : models) parts.push_back(&m->dense);
+    parts.resize(std::min(parts.size(), T_machine_model.size()));
+    return compose_surfaces(parts, {T_machine_model.begin(), T_machine_model.begin() + parts.size()});
 }
 
 ScanPoseFit fit_scan_pose(const PreparedScan& scan, const std::vector<const PreparedModel*>& models,

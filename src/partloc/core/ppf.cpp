@@ -30,10 +30,17 @@ double fast_atan2(double y, double x) {
     return y < 0 ? -r : r;
 }
 
-// Angle of the second point about +x once the pair is aligned by ppf_align_to_x of the first.
-double pair_alpha(const Eigen::Isometry3d& T_g, const Eigen::Vector3d& p2) {
+// Angle of the second point about +x once the pair is aligned by ppf_align_to_x of the first, as a fraction
+// of a turn in fixed point (2^32 = one turn, [0, 2 pi) in radians).
+//
+// Fixed point, so that the vote's bin of the difference of a scene and a model angle needs neither a branch
+// for the wrap-around nor a float conversion: with the angles in radians, `a < 0 ? a + 2 pi : a` is taken
+// at random, and the voting loop ran at 5.4 ns per vote (seed 106, 0.62 billion votes, perf).
+std::uint32_t pair_turn(const Eigen::Isometry3d& T_g, const Eigen::Vector3d& p2) {
     const Eigen::Vector3d v = T_g * p2;
-    return fast_atan2(v.z(), v.y());
+    double a = fast_atan2(v.z(), v.y()) / kTwoPi;  // (-1/2, 1/2]
+    a -= std::floor(a);                             // [0, 1)
+    return static_cast<std::uint32_t>(std::min(a * 4294967296.0, 4294967295.0));
 }
 }  // namespace
 
@@ -114,9 +121,7 @@ PpfModel::PpfModel(const std::vector<Eigen::Vector3d>& points, const std::vector
         for (std::size_t j = 0; j < n; ++j) {
             const int k = keys[i * n + j];
             if (k < 0) continue;
-            double a = pair_alpha(T_g[i], points_[j]);
-            a -= kTwoPi * std::floor(a / kTwoPi);  // [0, 2 pi), as the scene's
-            entries_[fill[k]++] = {static_cast<std::uint32_t>(i), static_cast<float>(a)};
+            entries_[fill[k]++] = {static_cast<std::uint32_t>(i), pair_turn(T_g[i], points_[j])};
         }
 }
 
@@ -208,22 +213,23 @@ std::vector<std::vector<PoseCandidate>> ppf_detect(const std::vector<const PpfMo
                 int db = 0;
                 const int ak = features.key(pr, nr, scene_points[j], scene_normals[j], &db);
                 if (ak < 0) continue;
-                double alpha_s = -1.0;  // computed when some model has entries for this pair
+                bool have_turn = false;  // the scene pair's angle, computed when some model has entries for it
+                std::uint32_t turn_s = 0;
                 for (std::size_t m = 0; m < M; ++m) {
                     const PpfModel& model = *models[m];
                     const auto [b, e] = model.lookup(model.key_of(ak, db));
                     if (b == e || static_cast<std::size_t>(e - b) > model.max_bucket()) continue;
-                    if (alpha_s < 0.0) {
-                        alpha_s = pair_alpha(T_sg, scene_points[j]);
-                        alpha_s -= kTwoPi * std::floor(alpha_s / kTwoPi);  // [0, 2 pi)
+                    if (!have_turn) {
+                        turn_s = pair_turn(T_sg, scene_points[j]);
+                        have_turn = true;
                     }
                     std::uint16_t* votes = acc[m].data();
                     auto& [top, top_at] = best[m];
                     for (const auto* it = b; it != e; ++it) {
-                        double a = alpha_s - it->alpha;
-                        if (a < 0) a += kTwoPi;
-                        const int ab = std::min(nalpha - 1, static_cast<int>(a * (nalpha / kTwoPi)));
-                        const std::size_t at = it->model_index * nalpha + ab;
+                        // The bin of (scene angle - model angle) mod one turn.
+                        const std::uint32_t d = turn_s - it->turn;
+                        const std::size_t ab = (static_cast<std::uint64_t>(d) * nalpha) >> 32;
+                        const std::size_t at = std::size_t(it->model_index) * nalpha + ab;
                         auto& v = votes[at];
                         if (v < 65535) ++v;
                         // The running maximum (the first index among equals, as a scan would find it).

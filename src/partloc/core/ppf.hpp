@@ -69,7 +69,9 @@ public:
 
     struct Entry {
         std::uint32_t model_index;
-        float alpha;  ///< angle of the pair about the first normal, radians in [0, 2 pi)
+        /// Angle of the pair about the first normal as a fraction of a turn, fixed point (2^32 = one turn):
+        /// the difference of two such angles wraps around by itself in unsigned arithmetic.
+        std::uint32_t turn;
     };
     /// Entries with this key: [begin, end).
     std::pair<const Entry*, const Entry*> lookup(int key) const;

@@ -12,10 +12,36 @@
 
 namespace partloc {
 
+int Surface::nearest(const Eigen::Vector3d& p, int k, double max_distance, int* indices,
+                     double* squared_distances) const {
+    if (parts.empty()) return grid.nearest(p, k, max_distance, indices, squared_distances);
+    k = std::min(k, SampleGrid::kMaxK);
+    int found = 0;
+    int idx[SampleGrid::kMaxK];
+    double d2[SampleGrid::kMaxK];
+    for (const Part& part : parts) {
+        // A part far from p answers from its grid's distance transform in one lookup.
+        const int n = part.surface->grid.nearest(part.T_part_this * p, k, max_distance, idx, d2);
+        for (int j = 0; j < n; ++j) {
+            // Into the k best so far, nearest first (a part's answers are sorted, so most stop at once).
+            if (found == k && d2[j] >= squared_distances[k - 1]) break;
+            int at = found < k ? found++ : k - 1;
+            while (at > 0 && squared_distances[at - 1] > d2[j]) {
+                squared_distances[at] = squared_distances[at - 1];
+                indices[at] = indices[at - 1];
+                --at;
+            }
+            squared_distances[at] = d2[j];
+            indices[at] = part.first + idx[j];
+        }
+    }
+    return found;
+}
+
 int Surface::nearest(const Eigen::Vector3d& p, double* squared_distance, double max_distance) const {
     int idx = -1;
     double d2 = 0.0;
-    if (grid.nearest(p, 1, max_distance, &idx, &d2) < 1) return -1;
+    if (nearest(p, 1, max_distance, &idx, &d2) < 1) return -1;
     if (squared_distance) *squared_distance = d2;
     return idx;
 }
@@ -31,7 +57,6 @@ Surface make_surface(std::shared_ptr<open3d::geometry::PointCloud> cloud, double
     s.points = cloud->points_;
     s.normals = cloud->normals_;
     for (auto& n : s.normals) n.normalize();
-    s.tree = std::make_shared<open3d::geometry::KDTreeFlann>(*cloud);
     if (!s.points.empty()) {
         // Without a spacing, that of samples spread over a surface of the bounding box's size.
         const double d = (cloud->GetMaxBound() - cloud->GetMinBound()).norm();
@@ -45,6 +70,34 @@ Surface make_surface(std::shared_ptr<open3d::geometry::PointCloud> cloud, double
         s.diameter = (box.max_bound_ - box.min_bound_).norm();
     }
     s.spacing = spacing;
+    return s;
+}
+
+Surface compose_surfaces(const std::vector<const Surface*>& parts,
+                         const std::vector<Eigen::Isometry3d>& T_this_part) {
+    if (parts.size() != T_this_part.size()) throw std::invalid_argument("compose_surfaces: one pose per part");
+    Surface s;
+    s.cloud = std::make_shared<open3d::geometry::PointCloud>();
+    s.spacing = std::numeric_limits<double>::infinity();
+    for (std::size_t g = 0; g < parts.size(); ++g) {
+        const Surface& part = *parts[g];
+        if (!part.parts.empty()) throw std::invalid_argument("compose_surfaces: a part is itself composed");
+        const Eigen::Isometry3d& F = T_this_part[g];
+        s.parts.push_back({&part, F.inverse(), static_cast<int>(s.points.size())});
+        for (std::size_t i = 0; i < part.points.size(); ++i) {
+            s.points.push_back(F * part.points[i]);
+            s.normals.push_back(F.linear() * part.normals[i]);
+        }
+        s.spacing = std::min(s.spacing, part.spacing);
+    }
+    if (!std::isfinite(s.spacing)) s.spacing = 0.0;
+    s.cloud->points_ = s.points;
+    s.cloud->normals_ = s.normals;
+    if (!s.points.empty()) {
+        const auto box = s.cloud->GetAxisAlignedBoundingBox();
+        s.center = box.GetCenter();
+        s.diameter = (box.max_bound_ - box.min_bound_).norm();
+    }
     return s;
 }
 

@@ -1,6 +1,5 @@
 #pragma once
 // Oriented surface samples with a search structure built once, shared by the fine fit and the verification.
-#include <open3d/geometry/KDTreeFlann.h>
 #include <open3d/geometry/PointCloud.h>
 #include <open3d/geometry/TriangleMesh.h>
 
@@ -14,13 +13,21 @@
 
 namespace partloc {
 
-/// Points with unit normals and a KD-tree over the points. Build once, query from many threads.
+/// Points with unit normals and an exact nearest-sample search over them. Build once, query from many threads.
 struct Surface {
     std::vector<Eigen::Vector3d> points;
     std::vector<Eigen::Vector3d> normals;
     std::shared_ptr<open3d::geometry::PointCloud> cloud;  ///< the same points, for Open3D calls
-    std::shared_ptr<open3d::geometry::KDTreeFlann> tree;
-    SampleGrid grid;  ///< the fast exact search the fits use (sample_grid.hpp)
+    SampleGrid grid;  ///< the fast exact search the fits use (sample_grid.hpp); empty for a composed surface
+    /// A surface composed of other surfaces at rigid poses (make_pose_target: the fiducials where they are
+    /// in the machine): its samples are theirs, part after part, moved to this frame, and the search asks
+    /// each part's own grid. The parts must outlive this surface.
+    struct Part {
+        const Surface* surface = nullptr;
+        Eigen::Isometry3d T_part_this = Eigen::Isometry3d::Identity();  ///< this frame -> the part's
+        int first = 0;  ///< index of the part's first sample among this surface's
+    };
+    std::vector<Part> parts;
     /// Approximate search for the coarse stages of a fit (nearest_map.hpp); null unless add_coarse_map ran.
     /// Shared by copies of the surface, which keep the same samples.
     std::shared_ptr<const NearestMap> coarse;
@@ -32,6 +39,9 @@ struct Surface {
     /// within max_distance (a bound makes far queries cheap: the grid search stops at it).
     int nearest(const Eigen::Vector3d& p, double* squared_distance,
                 double max_distance = std::numeric_limits<double>::infinity()) const;
+    /// The up to k (<= SampleGrid::kMaxK) nearest samples within max_distance of p, nearest first: indices
+    /// and squared distances. Returns how many were found.
+    int nearest(const Eigen::Vector3d& p, int k, double max_distance, int* indices, double* squared_distances) const;
 };
 
 /// Gives `surface` an approximate search (Surface::coarse) with cells of `cell`, answering within `reach`.
@@ -39,6 +49,10 @@ void add_coarse_map(Surface& surface, double cell, double reach);
 
 /// Builds a Surface from points that carry normals (throws std::invalid_argument without normals).
 Surface make_surface(std::shared_ptr<open3d::geometry::PointCloud> cloud, double spacing);
+/// The surfaces `parts` at poses `T_this_part` as one surface (Surface::parts), without a grid of its own: a
+/// grid over fiducials spread across a machine spans mostly empty space (seed 106: 0.5 s of a job's 12 s of
+/// CPU went to building such grids, one per scan and per fiducial fit). The parts must outlive it.
+Surface compose_surfaces(const std::vector<const Surface*>& parts, const std::vector<Eigen::Isometry3d>& T_this_part);
 
 /// Paper §3.2 step 5 (MeshLab's Poisson-disk filter): samples the mesh surface with Poisson-disk sampling,
 /// about one sample per `spacing`^2 of surface and no two closer than 0.8 `spacing`, with the triangles' own

@@ -60,7 +60,7 @@ Verification verify_pose(const std::vector<Eigen::Vector3d>& scan_points, const 
     for (const auto& p : pts) {
         // The nearest six within the reach: beyond it no sample can hold the point (cover and inlier distance
         // are far smaller) or tell of a facing plane continued.
-        const int found = model.grid.nearest(p, 6, reach, knn_idx, knn_d2);
+        const int found = model.nearest(p, 6, reach, knn_idx, knn_d2);
         if (found < 1) continue;
         int on = -1;
         bool facing_plane = false;
