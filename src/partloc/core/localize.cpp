@@ -13,6 +13,7 @@
 #include <stdexcept>
 
 #include "partloc/core/icp.hpp"
+#include "partloc/core/normals.hpp"
 
 namespace partloc {
 
@@ -27,23 +28,6 @@ std::string fmt(const char* f, double a, double b = 0) {
 std::vector<Eigen::Vector3d> normalized(std::vector<Eigen::Vector3d> v) {
     for (auto& n : v) n.normalize();
     return v;
-}
-
-/// Unit normal (either sign) of the points pts[idx]: the least axis of their covariance, as Open3D's
-/// EstimateNormals computes it; zero for fewer than three points.
-Eigen::Vector3d pca_normal(const std::vector<Eigen::Vector3d>& pts, const std::vector<int>& idx) {
-    if (idx.size() < 3) return Eigen::Vector3d::Zero();
-    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-    for (int j : idx) mean += pts[j];
-    mean /= static_cast<double>(idx.size());
-    Eigen::Matrix3d C = Eigen::Matrix3d::Zero();
-    for (int j : idx) {
-        const Eigen::Vector3d d = pts[j] - mean;
-        C.noalias() += d * d.transpose();
-    }
-    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
-    es.computeDirect(C);
-    return es.eigenvectors().col(0).normalized();
 }
 
 }  // namespace
@@ -75,8 +59,8 @@ PreparedScan prepare_scan(const open3d::geometry::PointCloud& points, const Scal
     // 0.38 s instead of 0.95 s on seed 106 but scattered more: 28 % more pairs then passed the one-plane
     // test of the global fit, and its time went up by more than the saving.)
     auto half = s.cloud->VoxelDownSample(0.5 * sampling);
-    half->EstimateNormals(open3d::geometry::KDTreeSearchParamHybrid(1.5 * sampling, 30));
-    half->OrientNormalsTowardsCameraLocation(s.viewpoint);
+    half->normals_ = estimate_normals(half->points_, 1.5 * sampling, 30);
+    orient_towards(half->points_, half->normals_, s.viewpoint);
     const auto coarse = half->VoxelDownSample(sampling);
     s.coarse_points = coarse->points_;
     s.coarse_normals = normalized(coarse->normals_);
@@ -170,24 +154,8 @@ std::vector<Eigen::Vector3d> points_near_surface(const std::vector<Eigen::Vector
 std::vector<Eigen::Vector3d> normals_of(const std::vector<Eigen::Vector3d>& pts, const Scale& scale,
                                         const std::vector<std::size_t>* keep = nullptr) {
     const std::size_t n = keep ? keep->size() : pts.size();
-    if (pts.size() < 3) return std::vector<Eigen::Vector3d>(n, Eigen::Vector3d::Zero());  // Open3D warns
-    open3d::geometry::PointCloud pc;
-    pc.points_ = pts;
-    const open3d::geometry::KDTreeSearchParamHybrid param(3.0 * scale.spacing, 20);
-    if (!keep) {
-        pc.EstimateNormals(param);
-        return std::move(pc.normals_);
-    }
-    // As Open3D's EstimateNormals does for every point: the covariance of the neighbours, its least axis.
-    const open3d::geometry::KDTreeFlann tree(pc);
-    std::vector<Eigen::Vector3d> out(n, Eigen::Vector3d::Zero());
-    std::vector<int> idx;
-    std::vector<double> d2;
-    for (std::size_t i = 0; i < n; ++i) {
-        tree.Search(pts[(*keep)[i]], param, idx, d2);
-        out[i] = pca_normal(pts, idx);
-    }
-    return out;
+    if (pts.size() < 3) return std::vector<Eigen::Vector3d>(n, Eigen::Vector3d::Zero());
+    return estimate_normals(pts, 3.0 * scale.spacing, 20, keep);
 }
 
 std::vector<Eigen::Vector3d> subsample(const std::vector<Eigen::Vector3d>& v, std::size_t max_n) {

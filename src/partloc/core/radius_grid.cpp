@@ -20,7 +20,7 @@ RadiusGrid::RadiusGrid(const std::vector<Eigen::Vector3d>& points, double cell) 
     for (std::size_t j = 0; j < index_.size(); ++j) points_[j] = points[index_[j]];
 }
 
-void RadiusGrid::within(const Eigen::Vector3d& centre, double radius, std::vector<int>& out) const {
+void RadiusGrid::within(const Eigen::Vector3d& centre, double radius, std::vector<int>& out, bool sorted) const {
     out.clear();
     if (points_.empty() || !(radius > 0)) return;
     const double r2 = radius * radius;
@@ -61,7 +61,7 @@ void RadiusGrid::within(const Eigen::Vector3d& centre, double radius, std::vecto
             }
         }
     }
-    std::sort(out.begin(), out.end());
+    if (sorted) std::sort(out.begin(), out.end());
 }
 
 }  // namespace partloc

@@ -20,8 +20,9 @@ public:
     /// the points' box would need more than about two million cells.
     RadiusGrid(const std::vector<Eigen::Vector3d>& points, double cell);
 
-    /// Indices of the points closer than `radius` to `centre` (strictly), ascending, into `out`.
-    void within(const Eigen::Vector3d& centre, double radius, std::vector<int>& out) const;
+    /// Indices of the points closer than `radius` to `centre` (strictly), ascending, into `out`; unsorted
+    /// (in the grid's order, the same on every call) where the caller does not need them ascending.
+    void within(const Eigen::Vector3d& centre, double radius, std::vector<int>& out, bool sorted = true) const;
 
     std::size_t size() const { return points_.size(); }
 

@@ -15,6 +15,7 @@
 
 #include "partloc/core/cloud_stats.hpp"
 #include "partloc/core/localize.hpp"
+#include "partloc/core/normals.hpp"
 #include "partloc/core/stock.hpp"
 #include "partloc/core/workpiece_fit.hpp"
 #include "partloc/pipeline/uncertainty.hpp"
@@ -492,11 +493,11 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
             const Eigen::Vector3d p = T_machine0_scan * q;
             if (region.contains(p)) wp->points_.push_back(p);
         }
-        // Normals for the stock model, facing this scan's scanner. (Open3D throws on an empty cloud, from
-        // inside an OpenMP region, which ends the process: a scan that sees a fiducial and not the part.)
+        // Normals for the stock model, facing this scan's scanner. Fewer than ten points: a scan that sees a
+        // fiducial and not the part.
         if (wp->points_.size() >= 10) {
-            wp->EstimateNormals(open3d::geometry::KDTreeSearchParamHybrid(3.5 * work[i].scale.spacing, 30));
-            wp->OrientNormalsTowardsCameraLocation(T_machine0_scan * ps.viewpoint);
+            wp->normals_ = estimate_normals(wp->points_, 3.5 * work[i].scale.spacing, 30);
+            orient_towards(wp->points_, wp->normals_, T_machine0_scan * ps.viewpoint);
         } else if (r.fiducials.size() < 2 && top->corroborated == 0) {
             // One fiducial's fit alone placed the scan, and it puts nothing of the scan where the part is:
             // a look-alike of that fiducial (measured: a scan with every fiducial point removed was
