@@ -12,6 +12,7 @@
 //       workpiece origin and rotation error, wall time and peak memory of the method alone).
 //   partloc_bench header         the column names of the rows.
 //   partloc_bench nearest        SampleGrid against KDTreeFlann on the fits' nearest-sample queries.
+//   partloc_bench normals        our normals (core/normals) against Open3D's EstimateNormals, same points.
 //   partloc_bench scaling ...    the same as compare --method partloc (a name for the scaling runs).
 //
 // Exit codes: 0 a row was printed (whatever the method found), 2 bad arguments, 4 the generator could not
@@ -36,6 +37,7 @@ namespace partloc::bench {
 
 int counts_main(int argc, char** argv);
 int nearest_main(int argc, char** argv);
+int normals_main(int argc, char** argv);
 
 namespace {
 
@@ -195,6 +197,7 @@ int main(int argc, char** argv) {
     const std::string cmd = argv[1];
     if (cmd == "counts") return counts_main(argc - 1, argv + 1);
     if (cmd == "nearest") return nearest_main(argc - 1, argv + 1);
+    if (cmd == "normals") return normals_main(argc - 1, argv + 1);
     if (cmd == "compare") return compare_main(argc - 1, argv + 1, "");
     if (cmd == "header") {
         print_header();
