@@ -124,24 +124,46 @@ int SampleGrid::nearest(const Eigen::Vector3d& p, int k, double max_distance, in
         const std::size_t c = frame_.index(x, y, z);
         consider(start_[c], start_[c + 1]);
     };
+    // Every sample outside the cells within Chebyshev distance r of p's cell lies at least this far from p:
+    // r cells, and p's distance to the nearest face of its own cell (not only r cells: half the queries
+    // near a surface then stop at the 27 cells around p instead of searching the next shell).
+    const double margin = std::min({f.x() - fx, 1.0 - (f.x() - fx), f.y() - fy, 1.0 - (f.y() - fy), f.z() - fz,
+                                    1.0 - (f.z() - fz)});
+    const auto reached = [&](int r) { return (r + std::max(0.0, margin)) * frame_.cell; };
+    // Cells closer (Chebyshev) to p's cell than `first` hold no sample: the distance transform, or the grid's
+    // outside.
+    int r_first = first;
+    if (r_first <= 1 && ix >= 1 && iy >= 1 && iz >= 1 && ix + 1 < frame_.nx && iy + 1 < frame_.ny &&
+        iz + 1 < frame_.nz) {
+        // The usual query, near the surface and inside the grid: the 27 cells around p at once. Three cells
+        // along x are consecutive in the CSR arrays, so the block is nine runs of samples.
+        for (int z = iz - 1; z <= iz + 1; ++z)
+            for (int y = iy - 1; y <= iy + 1; ++y) {
+                const std::size_t c = frame_.index(ix - 1, y, z);
+                consider(start_[c], start_[c + 3]);
+            }
+        if (found == k && squared_distances[k - 1] <= reached(1) * reached(1)) return found;
+        r_first = 2;
+    }
     const int max_r = out + std::max(frame_.nx, std::max(frame_.ny, frame_.nz));
-    for (int r = std::max(0, first - 1); r <= max_r; ++r) {
-        if ((r - 1) * frame_.cell > max_distance) break;  // every sample in this shell is beyond the bound
+    for (int r = r_first; r <= max_r; ++r) {
+        if (r > 0 && reached(r - 1) > max_distance) break;  // every sample in this shell is beyond the bound
         // The shell of cells at Chebyshev distance r, clipped to the grid.
         const int z0 = std::max(iz - r, 0), z1 = std::min(iz + r, frame_.nz - 1);
         const int y0 = std::max(iy - r, 0), y1 = std::min(iy + r, frame_.ny - 1);
         for (int z = z0; z <= z1; ++z)
             for (int y = y0; y <= y1; ++y) {
                 if (r == 0 || std::abs(z - iz) == r || std::abs(y - iy) == r) {
+                    // A whole row of the shell: its cells are consecutive in the CSR arrays.
                     const int x0 = std::max(ix - r, 0), x1 = std::min(ix + r, frame_.nx - 1);
-                    for (int x = x0; x <= x1; ++x) visit(x, y, z);
+                    if (x0 <= x1) consider(start_[frame_.index(x0, y, z)], start_[frame_.index(x1, y, z) + 1]);
                 } else {
                     visit(ix - r, y, z);
                     visit(ix + r, y, z);
                 }
             }
         // Every sample not yet seen lies at least r cells (in space) from p.
-        if (found == k && squared_distances[k - 1] <= (r * frame_.cell) * (r * frame_.cell)) break;
+        if (found == k && squared_distances[k - 1] <= reached(r) * reached(r)) break;
     }
     return found;
 }

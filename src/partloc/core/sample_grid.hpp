@@ -7,7 +7,7 @@
 // surface are evenly spread (Poisson disk), so a uniform grid with cells of about 1.5 sample spacings finds
 // the k <= 8 nearest in the 27 cells around the point, and a distance transform of the occupied cells
 // rejects far points in one lookup. `partloc_bench nearest` (bench/nearest.cpp) measures it against
-// KDTreeFlann on the same queries: 1.8-2.1 times faster near the surface, 17-18 times for points far from it
+// KDTreeFlann on the same queries: 2.8-3.1 times faster near the surface, 18-20 times for points far from it
 // (BENCHMARK.md); tests/test_surface.cpp checks that it returns exactly what the KD-tree returns.
 #include <Eigen/Core>
 #include <Eigen/Geometry>
