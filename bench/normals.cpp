@@ -1,12 +1,13 @@
 // Normals of scan points: ours (core/normals.hpp, a grid search) against Open3D's EstimateNormals with the
 // same hybrid search (KD-tree), on the same points, in one process (the ratio is what counts on a shared
-// machine). One thread each, so that the ratio is that of the searches.
+// machine). One thread each (TBB for ours, OpenMP for Open3D's), so that the ratio is that of the searches.
 //   build/bench/partloc_bench normals
 // Points: a simulated scan of seed 106's cell (as `partloc simulate` makes), the three searches partloc
 // makes: radius 3.5 spacings / 30 (the workpiece points), 3 spacings / 20 (the fits' points), and 1.5
 // samplings / 30 on the cloud thinned to half the sampling (the global fit's coarse normals).
 #include <open3d/geometry/KDTreeSearchParam.h>
 #include <open3d/geometry/PointCloud.h>
+#include <omp.h>
 #include <tbb/global_control.h>
 
 #include <algorithm>
@@ -20,6 +21,7 @@ namespace partloc::bench {
 
 int normals_main(int, char**) {
     const tbb::global_control one(tbb::global_control::max_allowed_parallelism, 1);
+    omp_set_num_threads(1);
     CellSpec spec;
     spec.seed = 106;
     const sim::SimulatedJob cell = make_cell(spec);

@@ -58,11 +58,9 @@ PreparedScan prepare_scan(const open3d::geometry::PointCloud& points, const Scal
     // faces it. (Normals computed at the coarse points alone, from the finer grid's points around them, cost
     // 0.38 s instead of 0.95 s on seed 106 but scattered more: 28 % more pairs then passed the one-plane
     // test of the global fit, and its time went up by more than the saving.)
-    // Open3D's search here, not ours (core/normals.hpp): over a whole scan thinned to half the sampling its
-    // KD-tree is the faster (0.11 s against 0.09 s on seed 106's first scan, `partloc_bench normals`).
     auto half = s.cloud->VoxelDownSample(0.5 * sampling);
-    half->EstimateNormals(open3d::geometry::KDTreeSearchParamHybrid(1.5 * sampling, 30));
-    half->OrientNormalsTowardsCameraLocation(s.viewpoint);
+    half->normals_ = estimate_normals(half->points_, 1.5 * sampling, 30);
+    orient_towards(half->points_, half->normals_, s.viewpoint);
     const auto coarse = half->VoxelDownSample(sampling);
     s.coarse_points = coarse->points_;
     s.coarse_normals = normalized(coarse->normals_);
