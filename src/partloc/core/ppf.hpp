@@ -42,6 +42,14 @@ private:
     PpfSettings settings_;
     std::vector<double> edges_;
     double sin_c_ = 0.0, cos_c_ = 1.0;
+    /// angle_bin by table: the cosine's slot of [-1, 1] gives the bin at the slot's upper end and the one
+    /// edge the slot may hold (slots are narrower than the gap between two edges).
+    struct Slot {
+        double edge;  ///< an edge within the slot, or -2 (none)
+        int bin;      ///< the bin of the slot's upper end
+    };
+    static constexpr int kSlots = 2048;
+    std::vector<Slot> slots_;
 };
 
 /// The model's pair features, hashed. Built once per model, searched from many threads.
