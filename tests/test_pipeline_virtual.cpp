@@ -294,3 +294,37 @@ TEST(MirroredFiducial, ScanHeldTooLooselyIsRejected) {
     sim::disturb_probing(sj.job, 1430);
     check_lone_scan_with_a_mirrored(sj, 3, "the fiducials in view hold it too loosely");
 }
+
+// Issue 3: results do not depend on the number of threads. Every number the pipeline produces, to the last
+// bit: the scans' registrations, the located part, merged.ply's points and the stock.
+TEST(Threads, OneAndTwoThreadsGiveTheSameBits) {
+    sim::ScenarioOptions o;
+    o.a_values = {0.0, 90.0};
+    o.scans_per_position = 1;
+    const sim::SimulatedJob sj = sim::simulate_random_cell(3, o);
+    JobResult r[2];
+    for (int t : {1, 2}) {
+        RunSettings rs;
+        rs.threads = t;
+        rs.build_stock = true;
+        r[t - 1] = run_job(sj.job, rs);
+    }
+    ASSERT_EQ(r[0].scans.size(), r[1].scans.size());
+    int registered = 0;
+    for (std::size_t i = 0; i < r[0].scans.size(); ++i) {
+        EXPECT_EQ(r[0].scans[i].registered, r[1].scans[i].registered);
+        EXPECT_EQ(r[0].scans[i].message, r[1].scans[i].message);
+        EXPECT_TRUE(r[0].scans[i].T_machine_scan.matrix() == r[1].scans[i].T_machine_scan.matrix()) << "scan " << i;
+        registered += r[0].scans[i].registered;
+    }
+    EXPECT_GE(registered, 1);
+    ASSERT_TRUE(r[0].located);
+    EXPECT_TRUE(r[0].workpiece.T_machine_workpiece.matrix() == r[1].workpiece.T_machine_workpiece.matrix());
+    ASSERT_TRUE(r[0].merged && r[1].merged);
+    EXPECT_EQ(r[0].merged->points_, r[1].merged->points_);
+    EXPECT_EQ(r[0].merged->normals_, r[1].merged->normals_);
+    ASSERT_TRUE(r[0].stock && r[1].stock);
+    EXPECT_GT(r[0].stock->triangles_.size(), 1000u);
+    EXPECT_EQ(r[0].stock->vertices_, r[1].stock->vertices_);
+    EXPECT_EQ(r[0].stock->triangles_, r[1].stock->triangles_);
+}

@@ -73,7 +73,7 @@ struct Frame {
 
 Systems accumulate(const std::vector<Eigen::Vector3d>& pts, const std::vector<DatumSurface>& datums,
                    const Eigen::Isometry3d& T, double max_distance, bool weighted, const Frame& f) {
-    return tbb::parallel_reduce(
+    return tbb::parallel_deterministic_reduce(  // the same sums for any number of threads (icp.cpp)
         tbb::blocked_range<std::size_t>(0, pts.size(), 512), Systems(datums.size()),
         [&](const tbb::blocked_range<std::size_t>& range, Systems acc) {
             for (std::size_t i = range.begin(); i != range.end(); ++i) {

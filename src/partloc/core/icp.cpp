@@ -30,7 +30,10 @@ struct Normal {
 Normal accumulate(const std::vector<Eigen::Vector3d>& source, const Surface& target, const Eigen::Isometry3d& T,
                   double max_distance, bool weighted, const std::vector<Eigen::Vector3d>* normals, double min_cos,
                   bool approximate) {
-    return tbb::parallel_reduce(
+    // Deterministic: the same chunks, summed in the same order, for any number of threads and any
+    // scheduling (parallel_reduce's sums differed in their last bits from run to run of the same job, and
+    // with them merged.ply and stock.stl; seed 106).
+    return tbb::parallel_deterministic_reduce(
         tbb::blocked_range<std::size_t>(0, source.size(), 512), Normal{},
         [&](const tbb::blocked_range<std::size_t>& range, Normal acc) {
             int idx[4];
