@@ -527,3 +527,53 @@ TEST(DatumJob, RunLocatesByTheDatumsAndReportsEach) {
     EXPECT_LT(e.rotation_deg, 0.05);
     EXPECT_TRUE(j["probed_poses"].empty());
 }
+
+// A scan that one fiducial's fit alone registered is kept only where the part confirms it
+// (part_disowns_scan): fitted again on that scan's points alone, from where all the scans locate the part,
+// its points must not move along the surfaces' normals by more than five times the noise. A scan that slides
+// along a face it alone shows moves no point along a normal and stays; one that shows the part off does not.
+TEST(LoneScan, ThePartDisownsAScanThatShowsItOffNotOneThatSlidesAlongItsOnlyFace) {
+    const double spacing = 0.3, sigma = 0.05;
+    const Eigen::Isometry3d N = pose_from_origin_euler({-76.2, -12.7, 20.32}, {0, 0, 0});
+    const Eigen::Isometry3d T_true = pose_from_origin_euler({-75.0, -13.5, 20.82}, {1.5, -0.4, 0.7});
+    std::mt19937 rng(17);
+    const CastCorner cc = cast_corner(T_true, 0.0, spacing, sigma, rng);
+    const double ds = 0.25;
+    auto all = std::make_shared<open3d::geometry::PointCloud>();
+    for (const Surface& f : {grid_surface(N, {0, 0, 0}, {40, 0, 0}, {0, 30, 0}, ds),
+                             grid_surface(N, {0, 0, 0}, {0, 0, 15}, {40, 0, 0}, ds),
+                             grid_surface(N, {0, 0, 0}, {0, 30, 0}, {0, 0, 15}, ds)}) {
+        all->points_.insert(all->points_.end(), f.points.begin(), f.points.end());
+        all->normals_.insert(all->normals_.end(), f.normals.begin(), f.normals.end());
+    }
+    const Surface reference = make_surface(all, ds);
+    WorkpieceFitSettings ws;
+    ws.spacing = spacing;
+    ws.noise = sigma;
+    const WorkpieceFit located = fit_reference_surfaces(cc.all, reference, ws);
+    ASSERT_TRUE(located.ok) << located.reason;
+    const auto moved = [&](std::vector<Eigen::Vector3d> pts, const Eigen::Vector3d& along_part) {
+        for (auto& p : pts) p += T_true.linear() * along_part;
+        return pts;
+    };
+    const auto disowned = [&](const std::vector<Eigen::Vector3d>& pts, const WorkpieceFit& at) {
+        const std::string why = part_disowns_scan(pts, nullptr, at, reference, ws);
+        std::printf("  %s\n", why.empty() ? "confirmed" : why.c_str());
+        return why;
+    };
+    // Registered right: confirmed, the corner and the floor alone.
+    EXPECT_EQ(disowned(cc.all, located), "");
+    EXPECT_EQ(disowned(cc.a, located), "");
+    // Slid 1 mm along the floor, all it shows: no point moves along a normal.
+    EXPECT_EQ(disowned(moved(cc.a, {1.0, 0.6, 0.0}), located), "");
+    // The floor shown 1 mm high, the corner 1 mm off across a wall: the part it shows lies off.
+    EXPECT_NE(disowned(moved(cc.a, {0.0, 0.0, 1.0}), located).find("lies"), std::string::npos);
+    EXPECT_NE(disowned(moved(cc.all, {1.0, 0.0, 0.0}), located).find("lies"), std::string::npos);
+    // Nowhere near the part: unconfirmed.
+    EXPECT_NE(disowned(moved(cc.all, {0.0, 0.0, 60.0}), located).find("does not confirm"), std::string::npos);
+    // With the part not located by the scans together, the scan's own points must fix it: the corner does,
+    // the floor alone does not.
+    const WorkpieceFit not_located;
+    EXPECT_EQ(disowned(cc.all, not_located), "");
+    EXPECT_NE(disowned(cc.a, not_located).find("does not confirm"), std::string::npos);
+}

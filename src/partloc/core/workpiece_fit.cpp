@@ -111,3 +111,59 @@ WorkpieceFit fit_reference_surfaces(const std::vector<Eigen::Vector3d>& merged, 
 }
 
 }  // namespace partloc
+
+namespace partloc {
+
+std::string part_disowns_scan(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>* normals,
+                              const WorkpieceFit& located, const Surface& reference,
+                              const WorkpieceFitSettings& wfs) {
+    const Eigen::Isometry3d T_nominal_machine =
+        located.ok ? located.T_correction.inverse() : Eigen::Isometry3d::Identity();
+    std::vector<Eigen::Vector3d> pts, nrm;
+    pts.reserve(points.size());
+    for (const auto& p : points) pts.push_back(T_nominal_machine * p);
+    if (normals && normals->size() == points.size())
+        for (const auto& n : *normals) nrm.push_back(T_nominal_machine.linear() * n);
+    const WorkpieceFit own = fit_reference_surfaces(pts, reference, wfs, nrm.empty() ? nullptr : &nrm);
+    char buf[240];
+    if (own.inliers < wfs.min_inliers) {
+        // Unconfirmed is not good enough for a lone fiducial: a look-alike puts the scan's points where the
+        // part is not (measured: 8552 points in the part's region, none on its reference surfaces, the scan
+        // 200 mm and 90 degrees off).
+        std::snprintf(buf, sizeof buf,
+                      "the part does not confirm it: %zu of its %zu points in the part's region lie on the "
+                      "reference surfaces (needs %zu)",
+                      own.inliers, pts.size(), wfs.min_inliers);
+        return buf;
+    }
+    if (!located.ok) {
+        // With the part not located from the scans together there is nothing else to hold this scan to: its
+        // own points must fix the part in all six degrees of freedom (measured: seed 1320, 5 % outliers,
+        // fiducial A's model mirrored: the mirrored model alone placed scan 2 224 mm and 178 degrees off,
+        // where 1107 of its points lay on one plane that the reference surfaces slid onto, conditioning 0).
+        if (own.conditioning < 0.2 * wfs.min_conditioning) return "the part does not confirm it: fitted on its points alone, " + own.reason;
+        return {};
+    }
+    // Each point against the reference where its own fit puts it: the own fit moves the part by
+    // T_correction, so the point sits at T_correction^-1 p relative to the nominal surfaces. (Until this
+    // test, the point was moved by T_correction itself, away from the surfaces: a scan 1 mm off moved its
+    // points 2 mm off, out of reach of the search, and only the points it slid along were counted.)
+    const Eigen::Isometry3d back = own.T_correction.inverse();
+    double sum = 0.0;
+    std::size_t on = 0;
+    for (const auto& p : pts) {
+        const Eigen::Vector3d q = back * p;
+        double d2 = 0.0;
+        const int k = reference.nearest(q, &d2, own.distance);
+        if (k < 0) continue;
+        const double along = (p - q).dot(reference.normals[k]);
+        sum += along * along;
+        ++on;
+    }
+    const double moved = on ? std::sqrt(sum / on) : 0.0;
+    if (moved <= 5.0 * wfs.noise) return {};
+    std::snprintf(buf, sizeof buf, "the part it shows lies %.3g off the part the scans locate", moved);
+    return buf;
+}
+
+}  // namespace partloc

@@ -107,72 +107,25 @@ void unregister(ScanResult& r, std::string message) {
     r.message = std::move(message);
 }
 
-/// The scans registered by one fiducial alone that the part does not confirm: a look-alike of that
-/// fiducial, or that fiducial moved, placed them. The part is fitted again on each such scan's points alone,
-/// from the part located from all scans (from nominal when the merged fit failed). Fewer than min_inliers of
-/// its points on the reference surfaces rejects the scan (unconfirmed), and, where two or more registered
-/// scans located the part, so does an own fit that moves its points along the surfaces' normals by more than
-/// five times the noise (RMS over the points on the surfaces; directions the scan leaves free move no point
-/// along a normal and do not count, and do not bias the merged fit either). Such scans are marked not
-/// registered, with the reason; returns whether any was. A lone scan that the merged fit located the part
-/// from by itself is confirmed by that fit; where the merged fit did not locate the part, a lone scan's own
-/// fit must fix all six degrees of freedom at least weakly (conditioning 0.2 of the part fit's minimum), or
-/// the scan is rejected. Not the residual gate, nor the full conditioning: on the real bunny scans the own
-/// fits' RMS is 1.6-1.8 times the noise estimated from the data, and the top view's conditioning is 0.0095
-/// (against 0.010); the wrongly placed scans of seeds 1320 and 1355 had 0.0000 (points on one plane).
+/// The scans registered by one fiducial alone that the part does not confirm (part_disowns_scan): a look-alike
+/// of that fiducial, or that fiducial moved, placed them. Such scans are marked not registered, with the
+/// reason; returns whether any was. A lone scan that the merged fit located the part from by itself is
+/// confirmed by that fit.
 bool reject_inconsistent_scans(std::vector<ScanWork>& work, const WorkpieceFit& fit,
                                const Surface& reference, const WorkpieceFitSettings& wfs,
                                std::vector<ScanResult>& scans) {
     std::size_t registered = 0;
     for (const auto& r : scans) registered += r.registered;
     if (registered == 0 || (registered == 1 && fit.ok)) return false;
-    const bool located = fit.ok;  // by two scans or more
-    const Eigen::Isometry3d T_nominal_machine = located ? fit.T_correction.inverse() : Eigen::Isometry3d::Identity();
     bool any = false;
     for (std::size_t i = 0; i < scans.size(); ++i) {
         ScanResult& r = scans[i];
         if (!r.registered || r.fiducials.size() >= 2 || !work[i].workpiece_points) continue;
         work[i].all_normals();
         const auto& wp = *work[i].workpiece_points;
-        std::vector<Eigen::Vector3d> pts, normals;
-        for (const auto& p : wp.points_) pts.push_back(T_nominal_machine * p);
-        if (wp.HasNormals())
-            for (const auto& n : wp.normals_) normals.push_back(T_nominal_machine.linear() * n);
-        const WorkpieceFit own = fit_reference_surfaces(pts, reference, wfs, normals.empty() ? nullptr : &normals);
-        std::string why;
-        if (own.inliers < wfs.min_inliers) {
-            // Unconfirmed is not good enough for a lone fiducial: a look-alike puts the scan's points where
-            // the part is not (measured: 8552 points in the part's region, none on its reference surfaces,
-            // the scan 200 mm and 90 degrees off).
-            why = fmt("the part does not confirm it: %.0f of its %.0f points in the part's region lie on the "
-                      "reference surfaces (needs %.0f)",
-                      static_cast<double>(own.inliers), static_cast<double>(pts.size()),
-                      static_cast<double>(wfs.min_inliers));
-        } else if (!located && own.conditioning < 0.2 * wfs.min_conditioning) {
-            // With the part not located from the scans together there is nothing else to hold this scan
-            // to: its own points must fix the part in all six degrees of freedom (measured: seed 1320,
-            // 5 % outliers, fiducial A's model mirrored: the mirrored model alone placed scan 2 224 mm and
-            // 178 degrees off, where 1107 of its points lay on one plane that the reference surfaces slid
-            // onto, conditioning 0).
-            why = "the part does not confirm it: fitted on its points alone, " + own.reason;
-        } else if (located) {
-            double sum = 0.0;
-            std::size_t on = 0;
-            for (const auto& p : pts) {
-                const Eigen::Vector3d q = own.T_correction * p;
-                double d2 = 0.0;
-                const int k = reference.nearest(q, &d2, own.distance);
-                if (k < 0) continue;
-                const double along = (q - p).dot(reference.normals[k]);
-                sum += along * along;
-                ++on;
-            }
-            const double moved = on ? std::sqrt(sum / on) : 0.0;
-            if (moved <= 5.0 * wfs.noise) continue;
-            why = fmt("the part it shows lies %.3g off the part the scans locate", moved);
-        } else {
-            continue;
-        }
+        const std::string why =
+            part_disowns_scan(wp.points_, wp.HasNormals() ? &wp.normals_ : nullptr, fit, reference, wfs);
+        if (why.empty()) continue;
         const std::string name = r.fiducials.front();
         unregister(r, "only " + name + "'s fit places this scan, and " + why + ": " + name +
                           " moved, or a shape like it elsewhere placed the scan");
