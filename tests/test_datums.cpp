@@ -97,6 +97,34 @@ CastCorner cast_corner(const Eigen::Isometry3d& T_true, double tilt_deg, double 
     return cc;
 }
 
+// A cast corner (cast_corner, spacing 0.3, noise 0.05) at a known pose, the nominal reference surfaces of
+// its three faces, and the part fit's settings for it.
+struct CornerCase {
+    Eigen::Isometry3d N = pose_from_origin_euler({-76.2, -12.7, 20.32}, {0, 0, 0});
+    Eigen::Isometry3d T_true = pose_from_origin_euler({-75.0, -13.5, 20.82}, {1.5, -0.4, 0.7});
+    CastCorner corner;
+    Surface reference;
+    WorkpieceFitSettings ws;
+};
+
+CornerCase corner_case(unsigned seed) {
+    CornerCase c;
+    const double spacing = 0.3, sigma = 0.05, ds = 0.25;
+    std::mt19937 rng(seed);
+    c.corner = cast_corner(c.T_true, 0.0, spacing, sigma, rng);
+    auto all = std::make_shared<open3d::geometry::PointCloud>();
+    for (const Surface& f : {grid_surface(c.N, {0, 0, 0}, {40, 0, 0}, {0, 30, 0}, ds),
+                             grid_surface(c.N, {0, 0, 0}, {0, 0, 15}, {40, 0, 0}, ds),
+                             grid_surface(c.N, {0, 0, 0}, {0, 30, 0}, {0, 0, 15}, ds)}) {
+        all->points_.insert(all->points_.end(), f.points.begin(), f.points.end());
+        all->normals_.insert(all->normals_.end(), f.normals.begin(), f.normals.end());
+    }
+    c.reference = make_surface(all, ds);
+    c.ws.spacing = spacing;
+    c.ws.noise = sigma;
+    return c;
+}
+
 }  // namespace
 
 // The part's fit refuses points that scatter about the reference surfaces far more than the scanner's noise:
@@ -104,23 +132,12 @@ CastCorner cast_corner(const Eigen::Isometry3d& T_true, double tilt_deg, double 
 // RMS 0.17-0.19 mm against 0.08-0.10 for right fits, noise 0.13 mm). The same corner, its points scattered
 // 0.05: accepted when the noise is said to be 0.05, refused when it is said to be 0.02.
 TEST(PartFit, PointsScatteringFarMoreThanTheNoiseAreNotALocatedPart) {
-    const double spacing = 0.3, sigma = 0.05;
-    const Eigen::Isometry3d N = pose_from_origin_euler({-76.2, -12.7, 20.32}, {0, 0, 0});
-    const Eigen::Isometry3d T_true = pose_from_origin_euler({-75.0, -13.5, 20.82}, {1.5, -0.4, 0.7});
-    std::mt19937 rng(11);
-    const CastCorner corner = cast_corner(T_true, 0.0, spacing, sigma, rng);
-    const double ds = 0.25;
-    auto all = std::make_shared<open3d::geometry::PointCloud>();
-    for (const Surface& f : {grid_surface(N, {0, 0, 0}, {40, 0, 0}, {0, 30, 0}, ds),
-                             grid_surface(N, {0, 0, 0}, {0, 0, 15}, {40, 0, 0}, ds),
-                             grid_surface(N, {0, 0, 0}, {0, 30, 0}, {0, 0, 15}, ds)}) {
-        all->points_.insert(all->points_.end(), f.points.begin(), f.points.end());
-        all->normals_.insert(all->normals_.end(), f.normals.begin(), f.normals.end());
-    }
-    const Surface reference = make_surface(all, ds);
-    WorkpieceFitSettings ws;
-    ws.spacing = spacing;
-    ws.noise = sigma;
+    const CornerCase cs = corner_case(11);
+    const CastCorner& corner = cs.corner;
+    const Surface& reference = cs.reference;
+    const Eigen::Isometry3d& N = cs.N;
+    const Eigen::Isometry3d& T_true = cs.T_true;
+    WorkpieceFitSettings ws = cs.ws;
     const WorkpieceFit right = fit_reference_surfaces(corner.all, reference, ws);
     EXPECT_TRUE(right.ok) << right.reason;
     EXPECT_LT(pose_error(right.T_correction * N, T_true).translation, 0.02);
@@ -533,23 +550,11 @@ TEST(DatumJob, RunLocatesByTheDatumsAndReportsEach) {
 // its points must not move along the surfaces' normals by more than five times the noise. A scan that slides
 // along a face it alone shows moves no point along a normal and stays; one that shows the part off does not.
 TEST(LoneScan, ThePartDisownsAScanThatShowsItOffNotOneThatSlidesAlongItsOnlyFace) {
-    const double spacing = 0.3, sigma = 0.05;
-    const Eigen::Isometry3d N = pose_from_origin_euler({-76.2, -12.7, 20.32}, {0, 0, 0});
-    const Eigen::Isometry3d T_true = pose_from_origin_euler({-75.0, -13.5, 20.82}, {1.5, -0.4, 0.7});
-    std::mt19937 rng(17);
-    const CastCorner cc = cast_corner(T_true, 0.0, spacing, sigma, rng);
-    const double ds = 0.25;
-    auto all = std::make_shared<open3d::geometry::PointCloud>();
-    for (const Surface& f : {grid_surface(N, {0, 0, 0}, {40, 0, 0}, {0, 30, 0}, ds),
-                             grid_surface(N, {0, 0, 0}, {0, 0, 15}, {40, 0, 0}, ds),
-                             grid_surface(N, {0, 0, 0}, {0, 30, 0}, {0, 0, 15}, ds)}) {
-        all->points_.insert(all->points_.end(), f.points.begin(), f.points.end());
-        all->normals_.insert(all->normals_.end(), f.normals.begin(), f.normals.end());
-    }
-    const Surface reference = make_surface(all, ds);
-    WorkpieceFitSettings ws;
-    ws.spacing = spacing;
-    ws.noise = sigma;
+    const CornerCase cs = corner_case(17);
+    const CastCorner& cc = cs.corner;
+    const Surface& reference = cs.reference;
+    const Eigen::Isometry3d& T_true = cs.T_true;
+    const WorkpieceFitSettings& ws = cs.ws;
     const WorkpieceFit located = fit_reference_surfaces(cc.all, reference, ws);
     ASSERT_TRUE(located.ok) << located.reason;
     const auto moved = [&](std::vector<Eigen::Vector3d> pts, const Eigen::Vector3d& along_part) {
