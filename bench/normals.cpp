@@ -7,8 +7,10 @@
 // samplings / 30 on the cloud thinned to half the sampling (the global fit's coarse normals).
 #include <open3d/geometry/KDTreeSearchParam.h>
 #include <open3d/geometry/PointCloud.h>
-#include <omp.h>
 #include <tbb/global_control.h>
+#ifdef PARTLOC_BENCH_WITH_OPENMP
+#include <omp.h>
+#endif
 
 #include <algorithm>
 #include <chrono>
@@ -21,7 +23,11 @@ namespace partloc::bench {
 
 int normals_main(int, char**) {
     const tbb::global_control one(tbb::global_control::max_allowed_parallelism, 1);
+#ifdef PARTLOC_BENCH_WITH_OPENMP
     omp_set_num_threads(1);
+#else
+    std::printf("(no OpenMP found at build time: Open3D's side runs on its own threads)\n");
+#endif
     CellSpec spec;
     spec.seed = 106;
     const sim::SimulatedJob cell = make_cell(spec);
