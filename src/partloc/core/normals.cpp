@@ -32,8 +32,8 @@ std::vector<Eigen::Vector3d> estimate_normals(const std::vector<Eigen::Vector3d>
     const std::size_t n = at ? at->size() : points.size();
     std::vector<Eigen::Vector3d> out(n, Eigen::Vector3d::UnitZ());
     if (points.size() < 3 || !(radius > 0) || max_nn < 3) return out;
-    // Cells of half the radius: the ball meets about a third fewer points' cells than with cells of the
-    // radius, and RadiusGrid skips the cells wholly outside it.
+    // Cells of half the radius (RadiusGrid skips those wholly outside the ball). Cells of 0.5, 0.75 and 1
+    // radius took the same time within 5 % on seed 106's first scan (`partloc_bench normals`).
     const RadiusGrid grid(points, 0.5 * radius);
     struct Buffers {
         std::vector<int> idx;
