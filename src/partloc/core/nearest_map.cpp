@@ -44,25 +44,18 @@ NearestMap::NearestMap(const std::vector<Eigen::Vector3d>& points, double cell, 
         next.clear();
         for (const std::size_t c : front) {
             queued[c] = 0;
-            const Eigen::Array3i at = frame_.coordinates(c);
-            const int x = at.x(), y = at.y(), z = at.z();
             const Eigen::Vector3d& s = points[nearest_[c]];
-            for (int dz = -1; dz <= 1; ++dz)
-                for (int dy = -1; dy <= 1; ++dy)
-                    for (int dx = -1; dx <= 1; ++dx) {
-                        const int X = x + dx, Y = y + dy, Z = z + dz;
-                        if (!frame_.contains(X, Y, Z)) continue;
-                        const std::size_t o = frame_.index(X, Y, Z);
-                        if (nearest_[o] == nearest_[c]) continue;
-                        const float d = static_cast<float>((s - centre(X, Y, Z)).squaredNorm());
-                        if (d >= d2[o] || d > reach2) continue;
-                        d2[o] = d;
-                        nearest_[o] = nearest_[c];
-                        if (!queued[o]) {
-                            queued[o] = 1;
-                            next.push_back(o);
-                        }
-                    }
+            frame_.for_each_around(c, [&](std::size_t o, int X, int Y, int Z) {
+                if (nearest_[o] == nearest_[c]) return;
+                const float d = static_cast<float>((s - centre(X, Y, Z)).squaredNorm());
+                if (d >= d2[o] || d > reach2) return;
+                d2[o] = d;
+                nearest_[o] = nearest_[c];
+                if (!queued[o]) {
+                    queued[o] = 1;
+                    next.push_back(o);
+                }
+            });
         }
         front.swap(next);
     }

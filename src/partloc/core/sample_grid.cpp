@@ -70,18 +70,11 @@ SampleGrid::SampleGrid(const std::vector<Eigen::Vector3d>& points, double spacin
         queue.pop_front();
         const int d = distance_[c];
         if (d >= 254) continue;
-        const Eigen::Array3i at = frame_.coordinates(c);
-        const int x = at.x(), y = at.y(), z = at.z();
-        for (int dz = -1; dz <= 1; ++dz)
-            for (int dy = -1; dy <= 1; ++dy)
-                for (int dx = -1; dx <= 1; ++dx) {
-                    const int X = x + dx, Y = y + dy, Z = z + dz;
-                    if (!frame_.contains(X, Y, Z)) continue;
-                    const std::size_t o = frame_.index(X, Y, Z);
-                    if (distance_[o] <= d + 1) continue;
-                    distance_[o] = static_cast<std::uint8_t>(d + 1);
-                    queue.push_back(o);
-                }
+        frame_.for_each_around(c, [&](std::size_t o, int, int, int) {
+            if (distance_[o] <= d + 1) return;
+            distance_[o] = static_cast<std::uint8_t>(d + 1);
+            queue.push_back(o);
+        });
     }
 }
 

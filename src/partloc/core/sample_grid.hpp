@@ -33,6 +33,16 @@ struct CellFrame {
                 static_cast<int>(c / (static_cast<std::size_t>(nx) * ny))};
     }
     bool contains(int x, int y, int z) const { return x >= 0 && y >= 0 && z >= 0 && x < nx && y < ny && z < nz; }
+    /// f(o, x, y, z) for cell c itself and each of its 26 neighbours in the frame (index, coordinates), z, y, x
+    /// ascending: the step of the grids' propagations (SampleGrid's distance transform, NearestMap's fill).
+    template <class F>
+    void for_each_around(std::size_t c, F&& f) const {
+        const Eigen::Array3i at = coordinates(c);
+        for (int z = at.z() - 1; z <= at.z() + 1; ++z)
+            for (int y = at.y() - 1; y <= at.y() + 1; ++y)
+                for (int x = at.x() - 1; x <= at.x() + 1; ++x)
+                    if (contains(x, y, z)) f(index(x, y, z), x, y, z);
+    }
     /// The cell holding p, clamped into the frame: its coordinates, and its index.
     Eigen::Array3i clamped_cell(const Eigen::Vector3d& p) const;
     std::size_t clamped_index(const Eigen::Vector3d& p) const {
