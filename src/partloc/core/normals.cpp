@@ -62,17 +62,17 @@ std::vector<Eigen::Vector3d> estimate_normals(const std::vector<Eigen::Vector3d>
     return out;
 }
 
+Eigen::Vector3d facing(const Eigen::Vector3d& n, const Eigen::Vector3d& p, const Eigen::Vector3d& viewpoint) {
+    const Eigen::Vector3d towards = viewpoint - p;
+    if (n.squaredNorm() == 0.0)
+        return towards.squaredNorm() > 0 ? Eigen::Vector3d(towards.normalized()) : Eigen::Vector3d::UnitZ();
+    return n.dot(towards) < 0.0 ? Eigen::Vector3d(-n) : n;
+}
+
 void orient_towards(const std::vector<Eigen::Vector3d>& points, std::vector<Eigen::Vector3d>& normals,
                     const Eigen::Vector3d& viewpoint) {
-    for (std::size_t i = 0; i < points.size() && i < normals.size(); ++i) {
-        const Eigen::Vector3d towards = viewpoint - points[i];
-        Eigen::Vector3d& n = normals[i];
-        if (n.squaredNorm() == 0.0) {
-            n = towards.squaredNorm() > 0 ? Eigen::Vector3d(towards.normalized()) : Eigen::Vector3d::UnitZ();
-        } else if (n.dot(towards) < 0.0) {
-            n = -n;
-        }
-    }
+    for (std::size_t i = 0; i < points.size() && i < normals.size(); ++i)
+        normals[i] = facing(normals[i], points[i], viewpoint);
 }
 
 }  // namespace partloc

@@ -26,6 +26,8 @@ std::vector<Eigen::Vector3d> estimate_normals(const std::vector<Eigen::Vector3d>
 /// surfaces that face it.
 void orient_towards(const std::vector<Eigen::Vector3d>& points, std::vector<Eigen::Vector3d>& normals,
                     const Eigen::Vector3d& viewpoint);
+/// The normal n of the point p facing `viewpoint`; a zero normal becomes the direction to it (or +z).
+Eigen::Vector3d facing(const Eigen::Vector3d& n, const Eigen::Vector3d& p, const Eigen::Vector3d& viewpoint);
 
 /// Unit normal, either sign, of the points pts[idx]: the least axis of their covariance; zero for fewer than
 /// three points or a degenerate neighbourhood.

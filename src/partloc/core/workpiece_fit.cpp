@@ -141,7 +141,8 @@ std::string part_disowns_scan(const std::vector<Eigen::Vector3d>& points, const 
         // own points must fix the part in all six degrees of freedom (measured: seed 1320, 5 % outliers,
         // fiducial A's model mirrored: the mirrored model alone placed scan 2 224 mm and 178 degrees off,
         // where 1107 of its points lay on one plane that the reference surfaces slid onto, conditioning 0).
-        if (own.conditioning < 0.2 * wfs.min_conditioning) return "the part does not confirm it: fitted on its points alone, " + own.reason;
+        if (own.conditioning < 0.2 * wfs.min_conditioning)
+            return "the part does not confirm it: fitted on its points alone, " + own.reason;
         return {};
     }
     // Each point against the reference where its own fit puts it: the own fit moves the part by

@@ -66,10 +66,10 @@ struct ScanWork {
     Scale scale;
     /// Machine frame, axes 0. Its normals (facing the scanner) are computed where they are used, by
     /// normals_at: the merge keeps a fraction of the points (a third on seed 106, a twentieth with 2 M points
-    /// per scan, where normals for every point took 2.5 of 19 s).
+    /// per scan, where normals for every point took 2.5 of 19 s). A zero normal is one not computed yet
+    /// (estimate_normals gives unit normals only).
     std::shared_ptr<open3d::geometry::PointCloud> workpiece_points;
     Eigen::Vector3d eye = Eigen::Vector3d::Zero();  ///< the scanner, same frame
-    std::vector<char> has_normal;
 
     /// Computes the normals of workpiece points `idx` that have none yet; the same normals whenever asked
     /// (from all of the scan's workpiece points around each).
@@ -78,14 +78,11 @@ struct ScanWork {
         auto& c = *workpiece_points;
         std::vector<std::size_t> missing;
         for (std::size_t k : idx)
-            if (!has_normal[k]) missing.push_back(k);
+            if (c.normals_[k].squaredNorm() == 0.0) missing.push_back(k);
         if (missing.empty()) return;
         const auto n = estimate_normals(c.points_, 3.5 * scale.spacing, 30, &missing);
-        for (std::size_t j = 0; j < missing.size(); ++j) {
-            const std::size_t k = missing[j];
-            c.normals_[k] = n[j].dot(eye - c.points_[k]) < 0.0 ? Eigen::Vector3d(-n[j]) : n[j];
-            has_normal[k] = 1;
-        }
+        for (std::size_t j = 0; j < missing.size(); ++j)
+            c.normals_[missing[j]] = facing(n[j], c.points_[missing[j]], eye);
     }
     void all_normals() {
         if (!workpiece_points) return;
@@ -478,8 +475,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         // Normals for the part's fit and the stock model, facing this scan's scanner, where they are used
         // (ScanWork::normals_at). Fewer than ten points: a scan that sees a fiducial and not the part.
         if (wp->points_.size() >= 10) {
-            wp->normals_.assign(wp->points_.size(), Eigen::Vector3d::Zero());
-            work[i].has_normal.assign(wp->points_.size(), 0);
+            wp->normals_.assign(wp->points_.size(), Eigen::Vector3d::Zero());  // none computed yet
             work[i].eye = T_machine0_scan * ps.viewpoint;
         } else if (r.fiducials.size() < 2 && top->corroborated == 0) {
             // One fiducial's fit alone placed the scan, and it puts nothing of the scan where the part is:
