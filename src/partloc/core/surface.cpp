@@ -7,7 +7,6 @@
 #include <cstdint>
 #include <limits>
 #include <random>
-#include <unordered_map>
 #include <stdexcept>
 
 namespace partloc {
@@ -110,6 +109,64 @@ double mesh_area(const open3d::geometry::TriangleMesh& mesh) {
     return area;
 }
 
+namespace {
+
+/// Lists of item indices by integer cell, in an open-addressing hash table that grows (load at most a half).
+class CellLists {
+public:
+    explicit CellLists(std::size_t expected) {
+        std::size_t n = 64;
+        while (n < 2 * expected) n *= 2;
+        slots_.assign(n, Slot{});
+    }
+    /// The last item pushed into the cell, or -1; next() walks back through the earlier ones.
+    std::int64_t head(std::int64_t x, std::int64_t y, std::int64_t z) const {
+        const Slot& s = slots_[find(x, y, z)];
+        return s.used ? s.head : -1;
+    }
+    std::int64_t next(std::int64_t item) const { return next_[static_cast<std::size_t>(item)]; }
+    /// Items are pushed as 0, 1, 2, ...
+    void push(std::int64_t x, std::int64_t y, std::int64_t z, std::int64_t item) {
+        if (2 * (used_ + 1) > slots_.size()) grow();
+        Slot& s = slots_[find(x, y, z)];
+        if (!s.used) {
+            s = Slot{x, y, z, -1, true};
+            ++used_;
+        }
+        next_.push_back(s.head);
+        s.head = item;
+    }
+
+private:
+    struct Slot {
+        std::int64_t x = 0, y = 0, z = 0, head = -1;
+        bool used = false;
+    };
+    std::size_t find(std::int64_t x, std::int64_t y, std::int64_t z) const {
+        std::uint64_t h = static_cast<std::uint64_t>(x) * 0x9E3779B97F4A7C15ull ^
+                          static_cast<std::uint64_t>(y) * 0xC2B2AE3D27D4EB4Full ^
+                          static_cast<std::uint64_t>(z) * 0x165667B19E3779F9ull;
+        h ^= h >> 29;
+        const std::size_t mask = slots_.size() - 1;
+        for (std::size_t i = h & mask;; i = (i + 1) & mask) {
+            const Slot& s = slots_[i];
+            if (!s.used || (s.x == x && s.y == y && s.z == z)) return i;
+        }
+    }
+    void grow() {
+        std::vector<Slot> old;
+        old.swap(slots_);
+        slots_.assign(2 * old.size(), Slot{});
+        for (const Slot& s : old)
+            if (s.used) slots_[find(s.x, s.y, s.z)] = s;
+    }
+    std::vector<Slot> slots_;
+    std::vector<std::int64_t> next_;
+    std::size_t used_ = 0;
+};
+
+}  // namespace
+
 std::shared_ptr<open3d::geometry::PointCloud> sample_mesh(const open3d::geometry::TriangleMesh& mesh,
                                                           double spacing) {
     if (mesh.triangles_.empty()) throw std::invalid_argument("mesh has no triangles");
@@ -134,17 +191,11 @@ std::shared_ptr<open3d::geometry::PointCloud> sample_mesh(const open3d::geometry
     }
     std::mt19937_64 rng(12345);  // models are sampled the same way every run
     std::uniform_real_distribution<double> u(0.0, 1.0);
-    const double inv = 1.0 / r;
-    struct Key {
-        std::int64_t x, y, z;
-        bool operator==(const Key& o) const { return x == o.x && y == o.y && z == o.z; }
-    };
-    struct Hash {
-        std::size_t operator()(const Key& k) const {
-            return static_cast<std::size_t>(k.x * 73856093 ^ k.y * 19349663 ^ k.z * 83492791);
-        }
-    };
-    std::unordered_map<Key, std::vector<std::size_t>, Hash> grid;
+    const double inv = 1.0 / r, r2 = r * r;
+    // The kept samples by cell of side r (a conflict lies in the 27 cells around), as linked lists in an
+    // open-addressing table: this loop tests millions of darts, and std::unordered_map's lookups with a
+    // vector per cell took 0.28 of a job's 8.3 s CPU (perf, seed 106).
+    CellLists kept(static_cast<std::size_t>(n_init / 4));
     auto cloud = std::make_shared<open3d::geometry::PointCloud>();
     for (std::size_t i = 0; i < n_init; ++i) {
         const double pick = u(rng) * acc;
@@ -158,22 +209,22 @@ std::shared_ptr<open3d::geometry::PointCloud> sample_mesh(const open3d::geometry
         }
         const Eigen::Vector3d& v0 = copy.vertices_[tri(0)];
         const Eigen::Vector3d p = v0 + a * (copy.vertices_[tri(1)] - v0) + b * (copy.vertices_[tri(2)] - v0);
-        const Key k{static_cast<std::int64_t>(std::floor(p.x() * inv)), static_cast<std::int64_t>(std::floor(p.y() * inv)),
-                    static_cast<std::int64_t>(std::floor(p.z() * inv))};
-        bool free = true;
+        const std::int64_t kx = static_cast<std::int64_t>(std::floor(p.x() * inv)),
+                           ky = static_cast<std::int64_t>(std::floor(p.y() * inv)),
+                           kz = static_cast<std::int64_t>(std::floor(p.z() * inv));
+        // The dart's own cell first: late in the sampling most darts land next to a kept sample there.
+        const auto conflicts = [&](std::int64_t x, std::int64_t y, std::int64_t z) {
+            for (std::int64_t j = kept.head(x, y, z); j >= 0; j = kept.next(j))
+                if ((cloud->points_[j] - p).squaredNorm() < r2) return true;
+            return false;
+        };
+        bool free = !conflicts(kx, ky, kz);
         for (std::int64_t dx = -1; dx <= 1 && free; ++dx)
             for (std::int64_t dy = -1; dy <= 1 && free; ++dy)
-                for (std::int64_t dz = -1; dz <= 1 && free; ++dz) {
-                    const auto it = grid.find({k.x + dx, k.y + dy, k.z + dz});
-                    if (it == grid.end()) continue;
-                    for (std::size_t j : it->second)
-                        if ((cloud->points_[j] - p).squaredNorm() < r * r) {
-                            free = false;
-                            break;
-                        }
-                }
+                for (std::int64_t dz = -1; dz <= 1 && free; ++dz)
+                    if ((dx || dy || dz) && conflicts(kx + dx, ky + dy, kz + dz)) free = false;
         if (!free) continue;
-        grid[k].push_back(cloud->points_.size());
+        kept.push(kx, ky, kz, static_cast<std::int64_t>(cloud->points_.size()));
         cloud->points_.push_back(p);
         cloud->normals_.push_back(copy.triangle_normals_[std::min(t, copy.triangles_.size() - 1)]);
     }
