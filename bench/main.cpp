@@ -13,6 +13,9 @@
 //   partloc_bench header         the column names of the rows.
 //   partloc_bench nearest        SampleGrid against KDTreeFlann on the fits' nearest-sample queries.
 //   partloc_bench normals        our normals (core/normals) against Open3D's EstimateNormals, same points.
+//   partloc_bench stock [--seed N] [--spacing MM] [--sweep]
+//                                our stock mesh (core/stock) against Open3D's Poisson, same merged points:
+//                                time and distance to the true workpiece.
 //   partloc_bench scaling ...    the same as compare --method partloc (a name for the scaling runs).
 //
 // Exit codes: 0 a row was printed (whatever the method found), 2 bad arguments, 4 the generator could not
@@ -38,6 +41,7 @@ namespace partloc::bench {
 int counts_main(int argc, char** argv);
 int nearest_main(int argc, char** argv);
 int normals_main(int argc, char** argv);
+int stock_main(int argc, char** argv);
 
 namespace {
 
@@ -198,6 +202,7 @@ int main(int argc, char** argv) {
     if (cmd == "counts") return counts_main(argc - 1, argv + 1);
     if (cmd == "nearest") return nearest_main(argc - 1, argv + 1);
     if (cmd == "normals") return normals_main(argc - 1, argv + 1);
+    if (cmd == "stock") return stock_main(argc - 1, argv + 1);
     if (cmd == "compare") return compare_main(argc - 1, argv + 1, "");
     if (cmd == "header") {
         print_header();

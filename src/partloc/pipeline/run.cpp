@@ -734,7 +734,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         located->Transform(T_correction.matrix());
         result.final_part_located = located;
     }
-    if (settings.build_stock) {
+    if (settings.build_stock && spacing > 0) {
         StockSettings ss;
         ss.spacing = spacing;
         result.stock = build_stock(*result.merged, ss);
