@@ -14,6 +14,7 @@
 #include <stdexcept>
 
 #include "partloc/core/cloud_stats.hpp"
+#include "partloc/core/icp.hpp"
 #include "partloc/core/localize.hpp"
 #include "partloc/core/normals.hpp"
 #include "partloc/core/stock.hpp"
@@ -638,6 +639,49 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         fit = fit_reference_surfaces(merged->points_, reference, wfs,
                                      merged->HasNormals() ? &merged->normals_ : nullptr);
     }
+    // The last stage once more, on every point of the scans in the fit near the reference surfaces: the merge
+    // thins the scans to 150 000 points and the fit's last stage to 60 000, and the part's turn is as
+    // uncertain as the noise of the points on its reference faces makes it (trials: the rotation's RMS error
+    // was the noise's bound). Measured on seed 106: 39 349 points on the surfaces against 13 115. These
+    // points, with their normals, are also what the uncertainty's jackknife refits, so that it scatters as
+    // this fit does.
+    std::vector<std::shared_ptr<open3d::geometry::PointCloud>> on_reference(job.scans.size());
+    if (fit.ok) {
+        const Eigen::Isometry3d T_nominal_machine = fit.T_correction.inverse();
+        std::vector<Eigen::Vector3d> pts, nrm;
+        for (std::size_t i = 0; i < job.scans.size(); ++i) {
+            if (!result.scans[i].registered || !in_fit[i] || !has_points(i)) continue;
+            const auto& c = *work[i].workpiece_points;
+            std::vector<char> near(c.points_.size(), 0);
+            tbb::parallel_for(tbb::blocked_range<std::size_t>(0, c.points_.size(), 4096), [&](const auto& r) {
+                for (std::size_t k = r.begin(); k != r.end(); ++k) {
+                    double d2 = 0.0;
+                    near[k] = reference.nearest(T_nominal_machine * c.points_[k], &d2, 2.0 * fit.distance) >= 0;
+                }
+            });
+            std::vector<std::size_t> idx;
+            for (std::size_t k = 0; k < near.size(); ++k)
+                if (near[k]) idx.push_back(k);
+            work[i].normals_at(idx);
+            auto& o = on_reference[i] = std::make_shared<open3d::geometry::PointCloud>();
+            for (std::size_t k : idx) {
+                o->points_.push_back(c.points_[k]);
+                o->normals_.push_back(c.normals_[k]);
+            }
+            pts.insert(pts.end(), o->points_.begin(), o->points_.end());
+            nrm.insert(nrm.end(), o->normals_.begin(), o->normals_.end());
+        }
+        IcpSettings is;
+        is.max_distances = {fit.distance};
+        is.max_iterations = 20;
+        const IcpResult r = icp_point_to_plane(pts, reference, T_nominal_machine, is, &nrm);
+        if (r.inliers >= fit.inliers) {
+            fit.T_correction = r.T_target_source.inverse();
+            fit.rmse = r.rmse;
+            fit.inliers = r.inliers;
+            fit.JtJ = r.JtJ;
+        }
+    }
     // What is written (merged.ply) and meshed into the stock: one point per voxel of the scans' spacing, of
     // every registered scan.
     for (std::size_t i = 0; i < job.scans.size(); ++i)
@@ -692,14 +736,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         UncertaintyInputs ui;
         for (std::size_t i = 0; i < job.scans.size(); ++i) {
             if (!result.scans[i].registered || !in_fit[i]) continue;
-            if (work[i].workpiece_points) {
-                std::vector<std::size_t> taken;
-                for (std::size_t k = 0; k < work[i].workpiece_points->points_.size();
-                     k += scan_stride(work[i].workpiece_points->points_.size()))
-                    taken.push_back(k);
-                work[i].normals_at(taken);
-            }
-            ui.scan_points.push_back(work[i].workpiece_points);
+            ui.scan_points.push_back(on_reference[i] ? on_reference[i] : work[i].workpiece_points);
             std::vector<std::size_t> used;
             for (const auto& name : result.scans[i].fiducials)
                 for (std::size_t k = 0; k < job.fiducials.size(); ++k)

@@ -51,7 +51,7 @@ void estimate_uncertainty(const Job& job, const UncertaintyInputs& in, Workpiece
     if (!w.located || n < 3 || !in.reference) return;
     const Pose6 full = pose6(w.T_machine_workpiece);
 
-    // The scans: the part fitted again without each one, on at most 8000 points of each.
+    // The scans: the part fitted again without each one, on the points of the others that the fit took.
     std::vector<std::vector<Eigen::Vector3d>> pts(n), nrm(n);
     for (int i = 0; i < n; ++i) {
         const auto& c = *in.scan_points[i];

@@ -25,12 +25,13 @@
 
 namespace partloc {
 
-/// The uncertainty takes every this-th of a scan's `points` workpiece points (at most about 8000).
-inline std::size_t scan_stride(std::size_t points) { return std::max<std::size_t>(1, points / 8000); }
+/// The uncertainty takes every this-th of a scan's `points` points (at most about 30 000): all of them for
+/// a scan of a few hundred thousand points, whose points on the reference surfaces number 5-10 thousand.
+inline std::size_t scan_stride(std::size_t points) { return std::max<std::size_t>(1, points / 30000); }
 
 struct UncertaintyInputs {
-    /// Each registered scan's workpiece points (machine frame, axes at 0; normals if available, needed at
-    /// every scan_stride-th point only).
+    /// Each registered scan's points that the part's fit takes: those near the reference surfaces, with
+    /// normals (machine frame, axes at 0).
     std::vector<std::shared_ptr<const open3d::geometry::PointCloud>> scan_points;
     /// For each of those scans: the fiducials that registered it (indices into job.fiducials).
     std::vector<std::vector<std::size_t>> scan_fiducials;
