@@ -163,3 +163,29 @@ TEST(ProbingUncertainty, ExactFiducialsAddNothing) {
     EXPECT_EQ(c.w.uncertainty.origin_probing.norm(), 0.0);
     EXPECT_EQ(c.w.uncertainty.euler_probing.norm(), 0.0);
 }
+
+// The interval is never narrower than the noise's own 1.96 sigma: points on the surfaces exactly leave the
+// jackknife nothing to scatter, and exact fiducials nothing from the probing, but a fit's information of
+// 1e6 / mm^2 along each axis (and 1e8 / rad^2 about each) still leaves 0.001 mm and 1e-4 rad of noise
+// (before, such an interval was 0: a jackknife of three or four scans can come out far below the noise).
+TEST(ProbingUncertainty, TheIntervalIsNeverNarrowerThanTheNoise) {
+    Case c = three_scans();
+    c.job.fiducials.push_back(block("F", Eigen::Vector3d(100.0, 0.0, 0.0), 0.0));
+    for (int i = 0; i < 3; ++i) {
+        c.in.scan_fiducials.push_back({0});
+        c.in.scan_fiducial_jtj.push_back({Matrix6d::Identity()});
+    }
+    Vector6d info;
+    info << 1e8, 1e8, 1e8, 1e6, 1e6, 1e6;  // twist [w, v] about the machine origin, the part's origin
+    c.in.information = info.asDiagonal();
+    estimate_uncertainty(c.job, c.in, c.w);
+    const auto& u = c.w.uncertainty;
+    ASSERT_TRUE(u.available);
+    EXPECT_LT(u.origin_scans.norm(), 1e-6);
+    for (int a = 0; a < 3; ++a) {
+        EXPECT_NEAR(u.origin_noise(a), 0.001, 1e-12) << a;
+        EXPECT_NEAR(u.euler_noise(a), 1e-4 * 180.0 / M_PI, 1e-12) << a;
+        EXPECT_NEAR(u.origin(a), 1.96 * 0.001, 1e-9) << a;
+        EXPECT_NEAR(u.euler_deg(a), 1.96 * 1e-4 * 180.0 / M_PI, 1e-9) << a;
+    }
+}

@@ -43,8 +43,9 @@ RULES = {
         (t95(t["m"] - 1) * t["scans"][a]) ** 2 + (1.96 * t["probing"][a]) ** 2 + (1.96 * t["noise"][a]) ** 2),
     "1.96*(scans + probing + noise)": lambda t, a: 1.96 * math.sqrt(
         t["scans"][a] ** 2 + t["probing"][a] ** 2 + t["noise"][a] ** 2),
-    # The rule in pipeline/uncertainty.cpp from 0ded79d on (after the fresh seeds 1200-1299).
+    # The rule in pipeline/uncertainty.cpp from 0ded79d (after the fresh seeds 1200-1299) to 17d0f91.
     "1.96*(scans + probing)": lambda t, a: 1.96 * math.sqrt(t["scans"][a] ** 2 + t["probing"][a] ** 2),
+    # The rule in pipeline/uncertainty.cpp after 17d0f91 (picked on seeds 1800-1899, checked on 1900-1999).
     "1.96*(max(scans, noise) + probing)": lambda t, a: 1.96 * math.sqrt(
         max(t["scans"][a], t["noise"][a]) ** 2 + t["probing"][a] ** 2),
     "t(m-1)*(scans + probing)": lambda t, a: t95(t["m"] - 1) * math.sqrt(t["scans"][a] ** 2 + t["probing"][a] ** 2),
