@@ -270,7 +270,7 @@ std::string render_report_html(const Job& job, const JobResult& result, const Re
         h << "<table><tr><th>shift from nominal</th><td class=num>" << f.length(e.translation) << " " << u
           << "</td></tr><tr><th>rotation from nominal</th><td class=num>" << f.angle(e.rotation_deg)
           << " °</td></tr><tr><th>fit rmse</th><td class=num>" << f.length(w.rmse) << " " << u
-          << "</td></tr><tr><th>merged points used</th><td class=num>" << w.points
+          << "</td></tr><tr><th>points the fit took</th><td class=num>" << w.points
           << "</td></tr><tr><th>of those on the reference surfaces</th><td class=num>" << w.inliers
           << "</td></tr></table>\n";
     }

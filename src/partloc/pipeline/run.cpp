@@ -649,6 +649,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     // this fit does.
     // With millions of points per scan, every k-th of them (at most about 1.5 million in all to look at).
     std::vector<std::shared_ptr<open3d::geometry::PointCloud>> on_reference(job.scans.size());
+    std::size_t fit_points = merged->points_.size();  // what the part's last fit took
     if (fit.ok) {
         const Eigen::Isometry3d T_nominal_machine = fit.T_correction.inverse();
         std::size_t total = 0;
@@ -685,6 +686,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         is.max_iterations = 20;
         const IcpResult r = icp_point_to_plane(pts, reference, T_nominal_machine, is, &nrm);
         if (r.inliers >= fit.inliers) {
+            fit_points = pts.size();
             fit.T_correction = r.T_target_source.inverse();
             fit.rmse = r.rmse;
             fit.inliers = r.inliers;
@@ -702,7 +704,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     const bool all_in_fit = std::count(in_fit.begin(), in_fit.end(), 0) == 0;
     result.merged = (all_in_fit ? merged : merge_registered(false))->VoxelDownSample(spacing);
     w.rmse = fit.rmse;
-    w.points = merged->points_.size();
+    w.points = fit_points;
     w.inliers = fit.inliers;
     w.information = fit.JtJ / std::max(wfs.noise * wfs.noise, 1e-30);
     if (!fit.ok) return not_located(fit.reason);
@@ -724,6 +726,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         if (job.workpiece.fit == WorkpieceFitMode::Datums) {
             const DatumFit df = fit_datums(merged->points_, datums, fit.T_correction, ds);
             w.datums = df.datums;
+            w.points = merged->points_.size();
             if (!df.ok) return not_located(df.reason);
             T_correction = df.T_correction;
             w.rmse = df.rmse;
@@ -743,9 +746,27 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     result.located = true;
     {
         UncertaintyInputs ui;
+        // The jackknife refits what the fit took: every point near the reference surfaces for the
+        // simultaneous fit; for the datums' fit, which takes the merged points, every k-th of each scan's
+        // workpiece points (the datums need not lie on the reference surfaces).
+        bool on_reference_fit = job.workpiece.fit != WorkpieceFitMode::Datums;
+        for (std::size_t i = 0; i < job.scans.size(); ++i)
+            if (result.scans[i].registered && in_fit[i] && has_points(i) && !on_reference[i])
+                on_reference_fit = false;
+        if (!on_reference_fit) ui.scan_points_most = 8000;
         for (std::size_t i = 0; i < job.scans.size(); ++i) {
             if (!result.scans[i].registered || !in_fit[i]) continue;
-            ui.scan_points.push_back(on_reference[i] ? on_reference[i] : work[i].workpiece_points);
+            if (!on_reference_fit || !on_reference[i]) {
+                if (work[i].workpiece_points) {
+                    std::vector<std::size_t> taken;
+                    const std::size_t n = work[i].workpiece_points->points_.size();
+                    for (std::size_t k = 0; k < n; k += scan_stride(n, ui.scan_points_most)) taken.push_back(k);
+                    work[i].normals_at(taken);
+                }
+                ui.scan_points.push_back(work[i].workpiece_points);
+            } else {
+                ui.scan_points.push_back(on_reference[i]);
+            }
             std::vector<std::size_t> used;
             for (const auto& name : result.scans[i].fiducials)
                 for (std::size_t k = 0; k < job.fiducials.size(); ++k)

@@ -55,7 +55,7 @@ void estimate_uncertainty(const Job& job, const UncertaintyInputs& in, Workpiece
     std::vector<std::vector<Eigen::Vector3d>> pts(n), nrm(n);
     for (int i = 0; i < n; ++i) {
         const auto& c = *in.scan_points[i];
-        const std::size_t stride = scan_stride(c.points_.size());
+        const std::size_t stride = scan_stride(c.points_.size(), in.scan_points_most);
         for (std::size_t k = 0; k < c.points_.size(); k += stride) {
             pts[i].push_back(c.points_[k]);
             if (c.HasNormals()) nrm[i].push_back(c.normals_[k]);
@@ -114,7 +114,7 @@ void estimate_uncertainty(const Job& job, const UncertaintyInputs& in, Workpiece
     const Eigen::Isometry3d T_nominal_machine = in.T_correction.inverse();
     for (int i = 0; i < n && in.reference; ++i) {
         const auto& c = *in.scan_points[i];
-        const std::size_t stride = scan_stride(c.points_.size());
+        const std::size_t stride = scan_stride(c.points_.size(), in.scan_points_most);
         for (std::size_t k = 0; k < c.points_.size(); k += stride) {
             double d2 = 0.0;
             const int j = in.reference->nearest(T_nominal_machine * c.points_[k], &d2, in.fit_distance);

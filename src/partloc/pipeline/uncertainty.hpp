@@ -25,14 +25,18 @@
 
 namespace partloc {
 
-/// The uncertainty takes every this-th of a scan's `points` points (at most about 30 000): all of them for
-/// a scan of a few hundred thousand points, whose points on the reference surfaces number 5-10 thousand.
-inline std::size_t scan_stride(std::size_t points) { return std::max<std::size_t>(1, points / 30000); }
+/// The uncertainty takes every this-th of a scan's `points` points, at most about `most` of them.
+inline std::size_t scan_stride(std::size_t points, std::size_t most) {
+    return std::max<std::size_t>(1, points / std::max<std::size_t>(most, 1));
+}
 
 struct UncertaintyInputs {
-    /// Each registered scan's points that the part's fit takes: those near the reference surfaces, with
-    /// normals (machine frame, axes at 0).
+    /// Each registered scan's points that the part's fit takes (machine frame, axes at 0; normals if available,
+    /// needed at every scan_stride(size, scan_points_most)-th point only).
     std::vector<std::shared_ptr<const open3d::geometry::PointCloud>> scan_points;
+    /// At most about this many of each scan's points are refitted: 30 000 covers all of a scan's points near
+    /// the reference surfaces (5-10 thousand of 250 k); of all its workpiece points, 8000.
+    std::size_t scan_points_most = 30000;
     /// For each of those scans: the fiducials that registered it (indices into job.fiducials).
     std::vector<std::vector<std::size_t>> scan_fiducials;
     /// For each scan, in scan_fiducials' order: each fiducial's share of the scan fit's JtJ (machine frame at
