@@ -5,9 +5,10 @@
 // machine frame, axes at 0, one point per voxel of the spacing, normals facing the scanners). Truth: the
 // cell's workpiece mesh at its true place. Columns: seconds; triangles; distance of the mesh's vertices to
 // the true surface (median, 95th percentile, max, mm); coverage: of the true-surface samples (Poisson disk,
-// 0.5 mm) within 1 mm of a merged point (cover_1) and within 0.5 mm of one (cover_.5), the fraction within two
-// (scanner) spacings of the mesh's triangles; back_p95: 95th percentile of the distance from those within 0.5 mm to the
-// mesh (how closely it follows the scanned surface, edges included). --sweep: ours with other settings.
+// 0.5 mm) within 1 mm of a merged point (cover_1) and within 0.5 mm of one (cover_.5), the fraction within
+// two (scanner) spacings of the mesh's triangles; back_p95: 95th percentile of the distance from those within
+// 0.5 mm to the mesh (how closely it follows the scanned surface, edges included). --sweep: ours with other
+// settings.
 #include <open3d/t/geometry/RaycastingScene.h>
 #include <tbb/global_control.h>
 
@@ -33,7 +34,8 @@ using Mesh = open3d::geometry::TriangleMesh;
 open3d::core::Tensor as_tensor(const std::vector<Eigen::Vector3d>& pts) {
     std::vector<float> q;
     q.reserve(3 * pts.size());
-    for (const auto& p : pts) q.insert(q.end(), {static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z())});
+    for (const auto& p : pts)
+        q.insert(q.end(), {static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z())});
     return open3d::core::Tensor(q, {static_cast<int64_t>(pts.size()), 3}, open3d::core::Float32);
 }
 
@@ -59,7 +61,8 @@ struct Truth {
     std::vector<std::uint8_t> close;      // ... and within 0.5 mm of one
 };
 
-void print_row(const std::string& what, double seconds, const Mesh& mesh, const Truth& truth, double spacing) {
+void print_row(const std::string& what, double seconds, const Mesh& mesh, const Truth& truth,
+               double spacing) {
     const auto d = distances_to(truth.surface, mesh.vertices_);
     const auto c = distances_to(mesh, truth.scanned);
     std::size_t covered = 0, close = 0, close_covered = 0;
@@ -132,12 +135,13 @@ int stock_main(int argc, char** argv) {
         truth.close.push_back(!found.empty());
     }
 
-    std::printf("seed %llu, scanner spacing %.3f mm, noise %.2f mm: %zu merged points at spacing %.3f mm, %zu "
-                "true-surface samples on scanned area; one thread each\n",
-                static_cast<unsigned long long>(spec.seed), spec.spacing, spec.noise, merged.points_.size(), spacing,
-                truth.scanned.size());
-    std::printf("%-24s %7s %9s %8s %8s %8s %8s %8s %8s\n", "method", "seconds", "triangles", "med_mm", "p95_mm",
-                "max_mm", "cover_1", "cover_.5", "back_p95");
+    std::printf(
+        "seed %llu, scanner spacing %.3f mm, noise %.2f mm: %zu merged points at spacing %.3f mm, %zu "
+        "true-surface samples on scanned area; one thread each\n",
+        static_cast<unsigned long long>(spec.seed), spec.spacing, spec.noise, merged.points_.size(), spacing,
+        truth.scanned.size());
+    std::printf("%-24s %7s %9s %8s %8s %8s %8s %8s %8s\n", "method", "seconds", "triangles", "med_mm",
+                "p95_mm", "max_mm", "cover_1", "cover_.5", "back_p95");
     const tbb::global_control one(tbb::global_control::max_allowed_parallelism, 1);
     using Clock = std::chrono::steady_clock;
     StockSettings base;

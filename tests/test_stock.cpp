@@ -1,6 +1,6 @@
-// The stock model (core/stock): oriented points sampled with noise on known shapes, and the merged points of a
-// simulated cell, against the true surfaces: distance, orientation, coverage, holes where nothing was scanned,
-// and the same bits for any number of threads.
+// The stock model (core/stock): oriented points sampled with noise on known shapes, and the merged points of
+// a simulated cell, against the true surfaces: distance, orientation, coverage, holes where nothing was
+// scanned, and the same bits for any number of threads.
 #include <gtest/gtest.h>
 #include <open3d/t/geometry/RaycastingScene.h>
 #include <open3d/utility/Logging.h>
@@ -30,8 +30,8 @@ constexpr double kNoise = 0.03;   // mm, 1 sigma along the normal
 
 /// A planar face sampled on a jittered grid of kSpacing: origin + s u + t v, s in [0, a], t in [0, b], with
 /// unit normal u x v, each point moved along it by Gaussian noise.
-void sample_face(Cloud& cloud, const Eigen::Vector3d& origin, const Eigen::Vector3d& u, const Eigen::Vector3d& v,
-                 double a, double b, std::mt19937_64& rng, double noise = kNoise) {
+void sample_face(Cloud& cloud, const Eigen::Vector3d& origin, const Eigen::Vector3d& u,
+                 const Eigen::Vector3d& v, double a, double b, std::mt19937_64& rng, double noise = kNoise) {
     std::uniform_real_distribution<double> jitter(-0.25 * kSpacing, 0.25 * kSpacing);
     std::normal_distribution<double> off(0.0, noise);
     const Eigen::Vector3d n = u.cross(v).normalized();
@@ -46,7 +46,8 @@ void sample_face(Cloud& cloud, const Eigen::Vector3d& origin, const Eigen::Vecto
 Cloud sample_box(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, std::uint64_t seed, int skip = -1) {
     std::mt19937_64 rng(seed);
     Cloud c;
-    const Eigen::Vector3d X = Eigen::Vector3d::UnitX(), Y = Eigen::Vector3d::UnitY(), Z = Eigen::Vector3d::UnitZ();
+    const Eigen::Vector3d X = Eigen::Vector3d::UnitX(), Y = Eigen::Vector3d::UnitY(),
+                          Z = Eigen::Vector3d::UnitZ();
     const Eigen::Vector3d d = hi - lo;
     // Each face as origin, u, v with u x v outward.
     if (skip != 0) sample_face(c, lo, Z, Y, d.z(), d.y(), rng);
@@ -113,7 +114,8 @@ double quantile(std::vector<double> v, double q) {
 }
 
 /// Distances of the stock's vertices to a true surface given as a distance function.
-std::vector<double> vertex_distances(const Mesh& m, const std::function<double(const Eigen::Vector3d&)>& dist) {
+std::vector<double> vertex_distances(const Mesh& m,
+                                     const std::function<double(const Eigen::Vector3d&)>& dist) {
     std::vector<double> d;
     for (const auto& v : m.vertices_) d.push_back(dist(v));
     return d;
@@ -124,7 +126,8 @@ std::vector<double> distances_to(const Mesh& mesh, const std::vector<Eigen::Vect
     open3d::t::geometry::RaycastingScene scene;
     scene.AddTriangles(open3d::t::geometry::TriangleMesh::FromLegacy(mesh));
     std::vector<float> q;
-    for (const auto& p : pts) q.insert(q.end(), {static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z())});
+    for (const auto& p : pts)
+        q.insert(q.end(), {static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z())});
     const auto t = scene.ComputeDistance(
         open3d::core::Tensor(q, {static_cast<int64_t>(pts.size()), 3}, open3d::core::Float32));
     const float* d = t.GetDataPtr<float>();
@@ -159,9 +162,10 @@ TEST(Stock, BoxWithNoiseIsMeshedOnItsSurfaceFacingOut) {
     ASSERT_GT(m->triangles_.size(), 10000u);
     ASSERT_EQ(m->triangle_normals_.size(), m->triangles_.size());
     const auto d = vertex_distances(*m, [](const Eigen::Vector3d& p) { return box_distance(p, kLo, kHi); });
-    const double med = quantile(d, 0.5), p95 = quantile(d, 0.95), worst = *std::max_element(d.begin(), d.end());
-    std::printf("box: %zu triangles, vertex distance median %.4f p95 %.4f max %.4f mm\n", m->triangles_.size(), med,
-                p95, worst);
+    const double med = quantile(d, 0.5), p95 = quantile(d, 0.95),
+                 worst = *std::max_element(d.begin(), d.end());
+    std::printf("box: %zu triangles, vertex distance median %.4f p95 %.4f max %.4f mm\n",
+                m->triangles_.size(), med, p95, worst);
     // Measured: median 0.0043, 95th percentile 0.038, max 0.24 mm for noise 0.03 mm; the tail is along the
     // edges and at the corners, which the cells (1.5 spacings) cut.
     EXPECT_LT(med, 0.01);
@@ -173,7 +177,8 @@ TEST(Stock, BoxWithNoiseIsMeshedOnItsSurfaceFacingOut) {
     // Held-out samples of the true surface (another draw, put back onto the box): within one voxel of it.
     const Cloud held = sample_box(kLo, kHi, 2);
     std::vector<Eigen::Vector3d> on_surface;
-    for (std::size_t i = 0; i < held.points_.size(); i += 7) on_surface.push_back(onto_box(held.points_[i], kLo, kHi));
+    for (std::size_t i = 0; i < held.points_.size(); i += 7)
+        on_surface.push_back(onto_box(held.points_[i], kLo, kHi));
     const auto back = distances_to(*m, on_surface);
     const double covered =
         static_cast<double>(std::count_if(back.begin(), back.end(), [](double x) { return x <= kSpacing; })) /
@@ -191,7 +196,8 @@ TEST(Stock, FaceWithoutPointsStaysOpen) {
     std::size_t across = 0, rim = 0;
     for (const auto& v : m->vertices_) {
         if (v.z() < kHi.z() - 1.0) continue;
-        const bool inside = v.x() > kLo.x() + 2.0 && v.x() < kHi.x() - 2.0 && v.y() > kLo.y() + 2.0 && v.y() < kHi.y() - 2.0;
+        const bool inside =
+            v.x() > kLo.x() + 2.0 && v.x() < kHi.x() - 2.0 && v.y() > kLo.y() + 2.0 && v.y() < kHi.y() - 2.0;
         (inside ? across : rim) += 1;
     }
     std::printf("open box: %zu vertices across the top, %zu along its rim\n", across, rim);
@@ -212,9 +218,11 @@ TEST(Stock, CylinderWithNoiseIsMeshedOnItsSurfaceFacingOut) {
     const Cloud pts = sample_cylinder(r, height, 4);
     const auto m = build_stock(pts, settings());
     ASSERT_GT(m->triangles_.size(), 5000u);
-    const auto d = vertex_distances(*m, [&](const Eigen::Vector3d& p) { return cylinder_distance(p, r, height); });
+    const auto d =
+        vertex_distances(*m, [&](const Eigen::Vector3d& p) { return cylinder_distance(p, r, height); });
     const double med = quantile(d, 0.5), p95 = quantile(d, 0.95);
-    std::printf("cylinder: %zu triangles, vertex distance median %.4f p95 %.4f mm\n", m->triangles_.size(), med, p95);
+    std::printf("cylinder: %zu triangles, vertex distance median %.4f p95 %.4f mm\n", m->triangles_.size(),
+                med, p95);
     // Measured: median 0.0094, 95th percentile 0.037 mm.
     EXPECT_LT(med, 0.015);
     EXPECT_LT(p95, 0.06);
@@ -264,7 +272,8 @@ TEST(Stock, SimulatedCellStockLiesOnTheTrueWorkpiece) {
     open3d::t::geometry::RaycastingScene scene;
     scene.AddTriangles(open3d::t::geometry::TriangleMesh::FromLegacy(truth));
     std::vector<float> q;
-    for (const auto& v : stock.vertices_) q.insert(q.end(), {static_cast<float>(v.x()), static_cast<float>(v.y()), static_cast<float>(v.z())});
+    for (const auto& v : stock.vertices_)
+        q.insert(q.end(), {static_cast<float>(v.x()), static_cast<float>(v.y()), static_cast<float>(v.z())});
     auto closest = scene.ComputeClosestPoints(
         open3d::core::Tensor(q, {static_cast<int64_t>(stock.vertices_.size()), 3}, open3d::core::Float32));
     const float* at = closest["points"].GetDataPtr<float>();
@@ -277,11 +286,12 @@ TEST(Stock, SimulatedCellStockLiesOnTheTrueWorkpiece) {
     std::size_t agree = 0;
     for (std::size_t i = 0; i < stock.triangles_.size(); ++i) {
         const int v = stock.triangles_[i][0];
-        agree += stock.triangle_normals_[i].dot(Eigen::Vector3d(normal[3 * v], normal[3 * v + 1], normal[3 * v + 2])) > 0;
+        agree += stock.triangle_normals_[i].dot(
+                     Eigen::Vector3d(normal[3 * v], normal[3 * v + 1], normal[3 * v + 2])) > 0;
     }
     const double facing = static_cast<double>(agree) / stock.triangles_.size();
-    // Covering: true-surface samples within half a millimetre of a merged point (scanned), within two spacings
-    // of the stock.
+    // Covering: true-surface samples within half a millimetre of a merged point (scanned), within two
+    // spacings of the stock.
     const auto samples = sample_mesh(truth, 1.0);
     const RadiusGrid merged(r.merged->points_, 0.5);
     std::vector<Eigen::Vector3d> scanned;
@@ -292,12 +302,13 @@ TEST(Stock, SimulatedCellStockLiesOnTheTrueWorkpiece) {
     }
     ASSERT_GT(scanned.size(), 5000u);
     const auto back = distances_to(stock, scanned);
-    const double covered =
-        static_cast<double>(std::count_if(back.begin(), back.end(), [](double x) { return x <= 2 * 0.383; })) /
-        back.size();
-    std::printf("cell 3: %zu triangles; vertex distance to the true workpiece median %.4f p95 %.4f mm; %.4f facing "
-                "its way; %.4f of %zu scanned samples covered\n",
-                stock.triangles_.size(), med, p95, facing, covered, scanned.size());
+    const double covered = static_cast<double>(std::count_if(back.begin(), back.end(),
+                                                             [](double x) { return x <= 2 * 0.383; })) /
+                           back.size();
+    std::printf(
+        "cell 3: %zu triangles; vertex distance to the true workpiece median %.4f p95 %.4f mm; %.4f facing "
+        "its way; %.4f of %zu scanned samples covered\n",
+        stock.triangles_.size(), med, p95, facing, covered, scanned.size());
     // Measured: median 0.016, 95th percentile 0.060 mm, facing 0.9984, covered 0.9996.
     EXPECT_LT(med, 0.03);
     EXPECT_LT(p95, 0.1);

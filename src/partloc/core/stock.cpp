@@ -26,7 +26,8 @@ constexpr Key kMask = (Key{1} << kBits) - 1;
 constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
 
 Key pack(const Eigen::Array3i& c) {
-    return static_cast<Key>(c.x()) | static_cast<Key>(c.y()) << kBits | static_cast<Key>(c.z()) << (2 * kBits);
+    return static_cast<Key>(c.x()) | static_cast<Key>(c.y()) << kBits |
+           static_cast<Key>(c.z()) << (2 * kBits);
 }
 Eigen::Array3i unpack(Key k) {
     return {static_cast<int>(k & kMask), static_cast<int>((k >> kBits) & kMask),
@@ -64,7 +65,9 @@ public:
 
 private:
     static constexpr Key kEmpty = ~Key{0};
-    std::size_t slot(Key key) const { return static_cast<std::size_t>((key * 0x9E3779B97F4A7C15ull) >> 24) & mask_; }
+    std::size_t slot(Key key) const {
+        return static_cast<std::size_t>((key * 0x9E3779B97F4A7C15ull) >> 24) & mask_;
+    }
     void place(Key key, std::uint32_t value) {
         std::size_t s = slot(key);
         while (keys_[s] != kEmpty) s = (s + 1) & mask_;
@@ -221,7 +224,9 @@ private:
     // `towards` (unit), each weight is also multiplied by (n_i.towards)^8 (0 for a normal turned away).
     struct Sums {
         double w = 0, nx = 0, ny = 0, nz = 0, np = 0;
-        double distance(const Eigen::Vector3d& x) const { return (nx * x.x() + ny * x.y() + nz * x.z() - np) / w; }
+        double distance(const Eigen::Vector3d& x) const {
+            return (nx * x.x() + ny * x.y() + nz * x.z() - np) / w;
+        }
     };
     template <bool kTowards>
     Sums sums(const Eigen::Vector3d& at, const Candidates& c, const Eigen::Vector3d& towards = {}) const {
@@ -402,7 +407,8 @@ std::vector<Eigen::Vector3d> cell_vertices(const Band& band, const std::vector<K
         for (const auto& e : kCellEdges) {
             const double fa = f[e[0]], fb = f[e[1]];
             if ((fa < 0) == (fb < 0)) continue;
-            const Eigen::Vector3d a = corner_offset(e[0]).cast<double>(), b = corner_offset(e[1]).cast<double>();
+            const Eigen::Vector3d a = corner_offset(e[0]).cast<double>(),
+                                  b = corner_offset(e[1]).cast<double>();
             sum += a + fa / (fa - fb) * (b - a);
             ++crossings;
         }
@@ -444,7 +450,8 @@ std::vector<Eigen::Vector3i> edge_quads(const Band& band, const std::vector<Key>
             if (!all) continue;
             // Counter-clockwise about +d faces +d: right where the edge leaves the solid along +d.
             if (fl >= 0) std::swap(q[1], q[3]);
-            if ((vertices[q[0]] - vertices[q[2]]).squaredNorm() <= (vertices[q[1]] - vertices[q[3]]).squaredNorm()) {
+            if ((vertices[q[0]] - vertices[q[2]]).squaredNorm() <=
+                (vertices[q[1]] - vertices[q[3]]).squaredNorm()) {
                 triangles.emplace_back(q[0], q[1], q[2]);
                 triangles.emplace_back(q[0], q[2], q[3]);
             } else {
@@ -478,9 +485,10 @@ void remove_unused_vertices(open3d::geometry::TriangleMesh& mesh) {
 // The spacing of the points on their surface: the side of the square each one covers, from the median number
 // of points within 3 spacings of about 2000 of them (a flat disc's worth), starting from the scanner's
 // `spacing` and measured again at the new one while it moves by more than a tenth. The merged points are
-// sparser than the scanner's spacing: run.cpp takes every k-th point to keep 150 k before thinning them to that
-// spacing (seed 106: 0.416 mm for 0.383; scanner spacing 0.135 mm: 0.32 mm), and weights that expect a point
-// per spacing^2 of 0.135 mm found support almost nowhere (measured: 9 % of the scanned surface covered).
+// sparser than the scanner's spacing: run.cpp takes every k-th point to keep 150 k before thinning them to
+// that spacing (seed 106: 0.416 mm for 0.383; scanner spacing 0.135 mm: 0.32 mm), and weights that expect a
+// point per spacing^2 of 0.135 mm found support almost nowhere (measured: 9 % of the scanned surface
+// covered).
 double surface_spacing(const std::vector<Eigen::Vector3d>& points, double spacing) {
     const RadiusGrid grid(points, spacing);
     const std::size_t step = std::max<std::size_t>(1, points.size() / 2000);
@@ -513,10 +521,12 @@ std::shared_ptr<open3d::geometry::TriangleMesh> build_stock(const open3d::geomet
     const double spacing = surface_spacing(points.points_, st.spacing);
     const double reach = st.radius * spacing;
     Lattice lattice;
-    lattice.edge = std::max(st.voxel * spacing, (box.GetMaxExtent() + 4 * reach) / static_cast<double>(kMask / 2));
+    lattice.edge =
+        std::max(st.voxel * spacing, (box.GetMaxExtent() + 4 * reach) / static_cast<double>(kMask / 2));
     // Room below the points for the band's growth and the field's cubes around it.
     lattice.origin = box.min_bound_ - Eigen::Vector3d::Constant(2 * reach + 4 * lattice.edge);
-    const ImlsField field(points.points_, points.normals_, lattice.origin - Eigen::Vector3d::Constant(reach), reach);
+    const ImlsField field(points.points_, points.normals_, lattice.origin - Eigen::Vector3d::Constant(reach),
+                          reach);
     Band band(field, lattice, st.min_support * field.flat_weight(spacing));
     band.grow(points.points_);
     const std::vector<Key> cells = band.crossed_cells();
@@ -527,8 +537,8 @@ std::shared_ptr<open3d::geometry::TriangleMesh> build_stock(const open3d::geomet
     return mesh;
 }
 
-std::shared_ptr<open3d::geometry::TriangleMesh> build_stock_poisson(const open3d::geometry::PointCloud& points,
-                                                                    const StockSettings& st) {
+std::shared_ptr<open3d::geometry::TriangleMesh> build_stock_poisson(
+    const open3d::geometry::PointCloud& points, const StockSettings& st) {
     auto empty = std::make_shared<open3d::geometry::TriangleMesh>();
     if (points.points_.size() < 100 || !points.HasNormals()) return empty;
     const auto box = points.GetAxisAlignedBoundingBox();
@@ -538,7 +548,8 @@ std::shared_ptr<open3d::geometry::TriangleMesh> build_stock_poisson(const open3d
     const int depth = std::clamp(static_cast<int>(std::ceil(std::log2(std::max(cells, 2.0)))), 5, 9);
     // One thread: with Open3D's own threads (-1) the mesh differed from run to run of the same job, and the
     // job took longer (seed 106 on 2 cores: 8.7-9.0 s against 7.3 s, measured at bc8e269).
-    auto [mesh, density] = open3d::geometry::TriangleMesh::CreateFromPointCloudPoisson(points, depth, 0, 1.1f, false, 1);
+    auto [mesh, density] =
+        open3d::geometry::TriangleMesh::CreateFromPointCloudPoisson(points, depth, 0, 1.1f, false, 1);
     if (!mesh || mesh->vertices_.empty()) return empty;
     std::vector<double> sorted = density;
     const std::size_t q = static_cast<std::size_t>(st.density_quantile * (sorted.size() - 1));

@@ -666,7 +666,8 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
             tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096), [&](const auto& r) {
                 for (std::size_t k = r.begin(); k != r.end(); ++k) {
                     double d2 = 0.0;
-                    near[k] = reference.nearest(T_nominal_machine * c.points_[k * stride], &d2, 2.0 * fit.distance) >= 0;
+                    const Eigen::Vector3d q = T_nominal_machine * c.points_[k * stride];
+                    near[k] = reference.nearest(q, &d2, 2.0 * fit.distance) >= 0;
                 }
             });
             std::vector<std::size_t> idx;
