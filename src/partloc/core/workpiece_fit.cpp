@@ -110,10 +110,6 @@ WorkpieceFit fit_reference_surfaces(const std::vector<Eigen::Vector3d>& merged, 
     return fit;
 }
 
-}  // namespace partloc
-
-namespace partloc {
-
 std::string part_disowns_scan(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>* normals,
                               const WorkpieceFit& located, const Surface& reference,
                               const WorkpieceFitSettings& wfs) {

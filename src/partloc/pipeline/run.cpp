@@ -748,12 +748,10 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     {
         UncertaintyInputs ui;
         // The jackknife refits what the fit took: every point near the reference surfaces for the
-        // simultaneous fit; for the datums' fit, which takes the merged points, every k-th of each scan's
-        // workpiece points (the datums need not lie on the reference surfaces).
-        bool on_reference_fit = job.workpiece.fit != WorkpieceFitMode::Datums;
-        for (std::size_t i = 0; i < job.scans.size(); ++i)
-            if (result.scans[i].registered && in_fit[i] && has_points(i) && !on_reference[i])
-                on_reference_fit = false;
+        // simultaneous fit (the part is located, so each fitted scan with points has them); for the datums'
+        // fit, which takes the merged points, every k-th of each scan's workpiece points (the datums need
+        // not lie on the reference surfaces).
+        const bool on_reference_fit = job.workpiece.fit != WorkpieceFitMode::Datums;
         if (!on_reference_fit) ui.scan_points_most = 8000;
         for (std::size_t i = 0; i < job.scans.size(); ++i) {
             if (!result.scans[i].registered || !in_fit[i]) continue;
