@@ -4,6 +4,7 @@
 #include <open3d/geometry/TriangleMesh.h>
 
 #include <cmath>
+#include <vector>
 
 #include "partloc/core/surface.hpp"
 #include "partloc/pipeline/uncertainty.hpp"
@@ -56,6 +57,15 @@ Case three_scans() {
     return c;
 }
 
+// Every scan of `c` fixed by the fiducials `ks` (indices into c.job.fiducials), with these shares of each
+// scan fit's JtJ.
+void every_scan_fixed_by(Case& c, const std::vector<std::size_t>& ks, const std::vector<Matrix6d>& jtj) {
+    for (std::size_t i = 0; i < c.in.scan_points.size(); ++i) {
+        c.in.scan_fiducials.push_back(ks);
+        c.in.scan_fiducial_jtj.push_back(jtj);
+    }
+}
+
 }  // namespace
 
 // Every scan fixed by one fiducial alone: its whole probing error moves every scan, and so the part, the
@@ -67,10 +77,7 @@ TEST(ProbingUncertainty, OneFiducialFixingEveryScanMovesThePartByItsWholeError) 
     c.job.fiducials.push_back(block("F", Eigen::Vector3d(100.0, 0.0, 0.0), sigma));
     Matrix6d H = Matrix6d::Identity();
     H(0, 1) = H(1, 0) = 0.3;  // any information: a scan fixed by one fiducial takes its error whole
-    for (int i = 0; i < 3; ++i) {
-        c.in.scan_fiducials.push_back({0});
-        c.in.scan_fiducial_jtj.push_back({H});
-    }
+    every_scan_fixed_by(c, {0}, {H});
     estimate_uncertainty(c.job, c.in, c.w);
     const auto& u = c.w.uncertainty;
     ASSERT_TRUE(u.available);
@@ -96,20 +103,13 @@ TEST(ProbingUncertainty, TwoFiducialsHoldingEachScanEquallyShareItsError) {
     two.job.fiducials.push_back(block("F", Eigen::Vector3d(100.0, 0.0, 0.0), sigma));
     two.job.fiducials.push_back(block("G", Eigen::Vector3d(-100.0, 50.0, 0.0), sigma));
     const Matrix6d H = Matrix6d::Identity();
-    for (int i = 0; i < 3; ++i) {
-        one.in.scan_fiducials.push_back({0});
-        one.in.scan_fiducial_jtj.push_back({H});
-        two.in.scan_fiducials.push_back({0, 1});
-        two.in.scan_fiducial_jtj.push_back({H, H});
-    }
+    every_scan_fixed_by(one, {0}, {H});
+    every_scan_fixed_by(two, {0, 1}, {H, H});
     estimate_uncertainty(one.job, one.in, one.w);
     // G alone, for its own share.
     Case g = three_scans();
     g.job.fiducials.push_back(block("G", Eigen::Vector3d(-100.0, 50.0, 0.0), sigma));
-    for (int i = 0; i < 3; ++i) {
-        g.in.scan_fiducials.push_back({0});
-        g.in.scan_fiducial_jtj.push_back({H});
-    }
+    every_scan_fixed_by(g, {0}, {H});
     estimate_uncertainty(g.job, g.in, g.w);
     estimate_uncertainty(two.job, two.in, two.w);
     ASSERT_TRUE(two.w.uncertainty.available);
@@ -133,10 +133,7 @@ TEST(ProbingUncertainty, EachFiducialMovesThePartOnlyInTheDirectionsItHolds) {
     Vector6d hf, hg;
     hf << e, e, e, 1, 1, 1;
     hg << 1, 1, 1, e, e, e;
-    for (int i = 0; i < 3; ++i) {
-        c.in.scan_fiducials.push_back({0, 1});
-        c.in.scan_fiducial_jtj.push_back({Matrix6d(hf.asDiagonal()), Matrix6d(hg.asDiagonal())});
-    }
+    every_scan_fixed_by(c, {0, 1}, {Matrix6d(hf.asDiagonal()), Matrix6d(hg.asDiagonal())});
     estimate_uncertainty(c.job, c.in, c.w);
     const auto& u = c.w.uncertainty;
     ASSERT_TRUE(u.available);
@@ -154,10 +151,7 @@ TEST(ProbingUncertainty, EachFiducialMovesThePartOnlyInTheDirectionsItHolds) {
 TEST(ProbingUncertainty, ExactFiducialsAddNothing) {
     Case c = three_scans();
     c.job.fiducials.push_back(block("F", Eigen::Vector3d(100.0, 0.0, 0.0), 0.0));
-    for (int i = 0; i < 3; ++i) {
-        c.in.scan_fiducials.push_back({0});
-        c.in.scan_fiducial_jtj.push_back({Matrix6d::Identity()});
-    }
+    every_scan_fixed_by(c, {0}, {Matrix6d::Identity()});
     estimate_uncertainty(c.job, c.in, c.w);
     ASSERT_TRUE(c.w.uncertainty.available);
     EXPECT_EQ(c.w.uncertainty.origin_probing.norm(), 0.0);
@@ -171,10 +165,7 @@ TEST(ProbingUncertainty, ExactFiducialsAddNothing) {
 TEST(ProbingUncertainty, TheIntervalIsNeverNarrowerThanTheNoise) {
     Case c = three_scans();
     c.job.fiducials.push_back(block("F", Eigen::Vector3d(100.0, 0.0, 0.0), 0.0));
-    for (int i = 0; i < 3; ++i) {
-        c.in.scan_fiducials.push_back({0});
-        c.in.scan_fiducial_jtj.push_back({Matrix6d::Identity()});
-    }
+    every_scan_fixed_by(c, {0}, {Matrix6d::Identity()});
     Vector6d info;
     info << 1e8, 1e8, 1e8, 1e6, 1e6, 1e6;  // twist [w, v] about the machine origin, the part's origin
     c.in.information = info.asDiagonal();
