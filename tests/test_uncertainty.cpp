@@ -88,8 +88,11 @@ TEST(ProbingUncertainty, OneFiducialFixingEveryScanMovesThePartByItsWholeError) 
         EXPECT_NEAR(u.origin_probing(a), std::sqrt(sigma * sigma + turn * turn * lever2), 1e-9) << a;
         EXPECT_NEAR(u.euler_probing(a), turn * 180.0 / M_PI, 1e-9) << a;
     }
-    // No noise and no registration error: the part does not move when a scan is left out.
+    // No noise and no registration error: the part does not move when a scan is left out. Nor does the
+    // probing move it: the one fiducial's error moves every scan alike, with or without any one of them.
     EXPECT_LT(u.origin_scans.norm(), 1e-6);
+    EXPECT_LT(u.origin_probing_in_scans.norm(), 1e-9);
+    EXPECT_LT(u.euler_probing_in_scans.norm(), 1e-9);
     // The interval holds the probing: 1.96 sigma at least.
     for (int a = 0; a < 3; ++a) EXPECT_GE(u.origin(a), 1.96 * u.origin_probing(a) - 1e-12);
 }
@@ -144,6 +147,42 @@ TEST(ProbingUncertainty, EachFiducialMovesThePartOnlyInTheDirectionsItHolds) {
         const double shift2 = centre_f.squaredNorm() - centre_f(a) * centre_f(a);
         EXPECT_NEAR(u.origin_probing(a), std::sqrt(sigma * sigma + turn * turn * shift2), 1e-6) << a;
         EXPECT_NEAR(u.euler_probing(a), turn * 180.0 / M_PI, 1e-6) << a;
+    }
+}
+
+// Scan 0 fixed by F alone, scans 1 and 2 by G alone, the three scans alike (each a third of the part's
+// JtJ): the part takes d_F / 3 + 2 d_G / 3 of the fiducials' errors. Left out, scan 0 leaves d_G, scan 1 or
+// 2 leaves d_F / 2 + d_G / 2; about their mean those scatter by (-1/3, 1/3) and twice (1/6, -1/6), so the
+// jackknife, (m - 1) / m times their sum of squares, would see (var_F + var_G) / 9 from the probing alone:
+// part of what the probing adds again.
+TEST(ProbingUncertainty, ScansDifferingInTheirFiducialsCarryProbingIntoTheJackknife) {
+    const double sigma = 0.01;
+    const Eigen::Vector3d at_f(100.0, 0.0, 0.0), at_g(-100.0, 50.0, 0.0);
+    auto alike = [] {
+        Case c = three_scans();
+        for (auto& s : c.in.scan_points) s = corner(1.5);
+        return c;
+    };
+    // Each fiducial alone fixing every scan: its whole variance at the part.
+    Case f = alike(), g = alike(), both = alike();
+    f.job.fiducials.push_back(block("F", at_f, sigma));
+    g.job.fiducials.push_back(block("G", at_g, sigma));
+    both.job.fiducials = {block("F", at_f, sigma), block("G", at_g, sigma)};
+    const Matrix6d H = Matrix6d::Identity();
+    every_scan_fixed_by(f, {0}, {H});
+    every_scan_fixed_by(g, {0}, {H});
+    both.in.scan_fiducials = {{0}, {1}, {1}};
+    both.in.scan_fiducial_jtj = {{H}, {H}, {H}};
+    for (Case* c : {&f, &g, &both}) estimate_uncertainty(c->job, c->in, c->w);
+    const auto& u = both.w.uncertainty;
+    ASSERT_TRUE(u.available);
+    ASSERT_EQ(u.scans, 3);
+    for (int a = 0; a < 3; ++a) {
+        const double vf = std::pow(f.w.uncertainty.origin_probing(a), 2), vg = std::pow(g.w.uncertainty.origin_probing(a), 2);
+        EXPECT_NEAR(u.origin_probing(a), std::sqrt(vf / 9.0 + 4.0 * vg / 9.0), 1e-6) << a;
+        EXPECT_NEAR(u.origin_probing_in_scans(a), std::sqrt((vf + vg) / 9.0), 1e-6) << a;
+        const double wf = std::pow(f.w.uncertainty.euler_probing(a), 2), wg = std::pow(g.w.uncertainty.euler_probing(a), 2);
+        EXPECT_NEAR(u.euler_probing_in_scans(a), std::sqrt((wf + wg) / 9.0), 1e-6) << a;
     }
 }
 

@@ -32,6 +32,9 @@ def read(paths):
                 last["probing"] = [float(x) for x in p[9:15]]
                 last["noise"] = [float(x) for x in p[16:22]]
                 last["m"] = int(p[23])
+                # From 2000-2099's rerun on: the part of the jackknife's scatter that the probing explains.
+                at = p.index("probing_in_scans") if "probing_in_scans" in p else -1
+                last["pis"] = [float(x) for x in p[at + 1:at + 7]] if at >= 0 else None
                 trials.append(last)
                 last = None
     return trials
@@ -48,6 +51,10 @@ RULES = {
     # The rule in pipeline/uncertainty.cpp after 17d0f91 (picked on seeds 1800-1899, checked on 1900-1999).
     "1.96*(max(scans, noise) + probing)": lambda t, a: 1.96 * math.sqrt(
         max(t["scans"][a], t["noise"][a]) ** 2 + t["probing"][a] ** 2),
+    # The jackknife less the probing's share of its scatter, the noise as a floor, then the probing.
+    "1.96*(max(scans - pis, noise) + probing)": lambda t, a: 1.96 * math.sqrt(
+        max(t["scans"][a] ** 2 - t["pis"][a] ** 2, t["noise"][a] ** 2) + t["probing"][a] ** 2)
+    if t["pis"] else float("nan"),
     "t(m-1)*(scans + probing)": lambda t, a: t95(t["m"] - 1) * math.sqrt(t["scans"][a] ** 2 + t["probing"][a] ** 2),
     # The rule in pipeline/uncertainty.cpp from f7b39b1 to 0ded79d.
     "1.96*max(scans, noise + probing)": lambda t, a: 1.96 * max(
@@ -70,6 +77,10 @@ def main():
                       ("noise (information)", "noise")]:
         rms = [math.sqrt(sum(t[key][a] ** 2 for t in trials) / n) for a in range(6)]
         print(f"  {name:<29}" + " ".join(f"{r:7.4f}" for r in rms))
+    have = [t for t in trials if t.get("pis")]
+    if have:
+        rms = [math.sqrt(sum(t["pis"][a] ** 2 for t in have) / len(have)) for a in range(6)]
+        print(f"  {'probing in the jackknife':<29}" + " ".join(f"{r:7.4f}" for r in rms))
     # What the points' noise and the fiducials' probing allow together: the bound the error can reach.
     rms = [math.sqrt(sum(t["noise"][a] ** 2 + t["probing"][a] ** 2 for t in trials) / n) for a in range(6)]
     print(f"  {'bound: noise and probing':<29}" + " ".join(f"{r:7.4f}" for r in rms))

@@ -113,6 +113,8 @@ Json workpiece_json(const Job& job, const WorkpieceResult& w) {
         j["uncertainty_parts"] = {
             {"sigma_from_scans", {{"origin", vector3(u.origin_scans)}, {"euler_xyz_deg", vector3(u.euler_scans)}}},
             {"sigma_from_probing", {{"origin", vector3(u.origin_probing)}, {"euler_xyz_deg", vector3(u.euler_probing)}}},
+            {"sigma_of_probing_in_scans",
+             {{"origin", vector3(u.origin_probing_in_scans)}, {"euler_xyz_deg", vector3(u.euler_probing_in_scans)}}},
             {"sigma_from_noise", {{"origin", vector3(u.origin_noise)}, {"euler_xyz_deg", vector3(u.euler_noise)}}},
             {"scans", u.scans}};
     } else {
