@@ -25,10 +25,11 @@ namespace partloc {
 
 namespace {
 
-/// Points per fiducial in the fits that place or judge a hypothesis (the scan's final fit takes all): a few
-/// thousand fix a pose to hundredths of a millimetre, far inside the tolerances those fits are judged by,
-/// and cost a fifth of the 10-20 thousand a fiducial shows in a scan of 250 k points (issue 3).
-constexpr std::size_t kHypothesisPoints = 3000;
+/// Points per fiducial in the fits that place or judge a hypothesis (the scan's final fit takes all): a
+/// thousand or two fix a pose to hundredths of a millimetre, far inside the tolerances those fits are judged
+/// by, and cost a tenth of the 10-20 thousand a fiducial shows in a scan of 250 k points (issue 3). 3000
+/// before (localize.cpp, kFinePoints).
+constexpr std::size_t kHypothesisPoints = 1500;
 
 using Clock = std::chrono::steady_clock;
 double seconds_since(Clock::time_point t0) {
