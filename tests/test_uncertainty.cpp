@@ -178,10 +178,12 @@ TEST(ProbingUncertainty, ScansDifferingInTheirFiducialsCarryProbingIntoTheJackkn
     ASSERT_TRUE(u.available);
     ASSERT_EQ(u.scans, 3);
     for (int a = 0; a < 3; ++a) {
-        const double vf = std::pow(f.w.uncertainty.origin_probing(a), 2), vg = std::pow(g.w.uncertainty.origin_probing(a), 2);
+        const double vf = std::pow(f.w.uncertainty.origin_probing(a), 2),
+                     vg = std::pow(g.w.uncertainty.origin_probing(a), 2);
         EXPECT_NEAR(u.origin_probing(a), std::sqrt(vf / 9.0 + 4.0 * vg / 9.0), 1e-6) << a;
         EXPECT_NEAR(u.origin_probing_in_scans(a), std::sqrt((vf + vg) / 9.0), 1e-6) << a;
-        const double wf = std::pow(f.w.uncertainty.euler_probing(a), 2), wg = std::pow(g.w.uncertainty.euler_probing(a), 2);
+        const double wf = std::pow(f.w.uncertainty.euler_probing(a), 2),
+                     wg = std::pow(g.w.uncertainty.euler_probing(a), 2);
         EXPECT_NEAR(u.euler_probing_in_scans(a), std::sqrt((wf + wg) / 9.0), 1e-6) << a;
     }
 }

@@ -181,16 +181,17 @@ int main(int argc, char** argv) {
         if (r.located && r.workpiece.uncertainty.available) {
             // The 1-sigma parts the half-widths come from, to calibrate how they combine.
             const auto& u = r.workpiece.uncertainty;
-            std::printf("      sigma scans %.4f %.4f %.4f %.4f %.4f %.4f probing %.4f %.4f %.4f %.4f %.4f %.4f noise %.4f "
-                        "%.4f %.4f %.4f %.4f %.4f jackknife %d rmse %.4f points %zu inliers %zu probing_in_scans %.4f %.4f %.4f "
-                        "%.4f %.4f %.4f\n",
-                        u.origin_scans.x(), u.origin_scans.y(), u.origin_scans.z(), u.euler_scans.x(), u.euler_scans.y(),
-                        u.euler_scans.z(), u.origin_probing.x(), u.origin_probing.y(), u.origin_probing.z(),
-                        u.euler_probing.x(), u.euler_probing.y(), u.euler_probing.z(), u.origin_noise.x(),
-                        u.origin_noise.y(), u.origin_noise.z(), u.euler_noise.x(), u.euler_noise.y(), u.euler_noise.z(),
-                        u.scans, r.workpiece.rmse, r.workpiece.points, r.workpiece.inliers, u.origin_probing_in_scans.x(),
-                        u.origin_probing_in_scans.y(), u.origin_probing_in_scans.z(), u.euler_probing_in_scans.x(),
-                        u.euler_probing_in_scans.y(), u.euler_probing_in_scans.z());
+            std::printf("      sigma scans %.4f %.4f %.4f %.4f %.4f %.4f probing %.4f %.4f %.4f %.4f %.4f %.4f "
+                        "noise %.4f %.4f %.4f %.4f %.4f %.4f jackknife %d rmse %.4f points %zu inliers %zu "
+                        "probing_in_scans %.4f %.4f %.4f %.4f %.4f %.4f\n",
+                        u.origin_scans.x(), u.origin_scans.y(), u.origin_scans.z(), u.euler_scans.x(),
+                        u.euler_scans.y(), u.euler_scans.z(), u.origin_probing.x(), u.origin_probing.y(),
+                        u.origin_probing.z(), u.euler_probing.x(), u.euler_probing.y(), u.euler_probing.z(),
+                        u.origin_noise.x(), u.origin_noise.y(), u.origin_noise.z(), u.euler_noise.x(),
+                        u.euler_noise.y(), u.euler_noise.z(), u.scans, r.workpiece.rmse, r.workpiece.points,
+                        r.workpiece.inliers, u.origin_probing_in_scans.x(), u.origin_probing_in_scans.y(),
+                        u.origin_probing_in_scans.z(), u.euler_probing_in_scans.x(), u.euler_probing_in_scans.y(),
+                        u.euler_probing_in_scans.z());
         }
         // Each trial's scans, so that two runs on the same seeds can be compared trial by trial.
         std::printf("      scans: %d right, %d WRONG, %d rejected with a fiducial in view", sc.right, sc.wrong, sc.missed);

@@ -309,7 +309,8 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
         const auto local_all = points_near(scan, c.centre, radius);
         // Down to a quarter of the sampling on a subsample, then every point at the noise's scale: a face
         // seen with few points (a narrow wall) is what fixes some directions, and a subsample thins it.
-        const IcpResult icp = icp_point_to_plane(subsample(local_all, kFinePoints), model.dense, c.T_model_scan, fine);
+        const IcpResult icp =
+            icp_point_to_plane(subsample(local_all, kFinePoints), model.dense, c.T_model_scan, fine);
         // The polish sees only the points near the surface after the fine fit (the rest cannot become
         // correspondences within the polish distance unless the pose moves by more than the fit's step), of
         // at most kPolishPoints around the candidate, taken by their order: it places one fiducial, which the

@@ -111,11 +111,15 @@ Json workpiece_json(const Job& job, const WorkpieceResult& w) {
     if (u.available) {
         j["uncertainty_95"] = {{"origin", vector3(u.origin)}, {"euler_xyz_deg", vector3(u.euler_deg)}};
         j["uncertainty_parts"] = {
-            {"sigma_from_scans", {{"origin", vector3(u.origin_scans)}, {"euler_xyz_deg", vector3(u.euler_scans)}}},
-            {"sigma_from_probing", {{"origin", vector3(u.origin_probing)}, {"euler_xyz_deg", vector3(u.euler_probing)}}},
+            {"sigma_from_scans",
+             {{"origin", vector3(u.origin_scans)}, {"euler_xyz_deg", vector3(u.euler_scans)}}},
+            {"sigma_from_probing",
+             {{"origin", vector3(u.origin_probing)}, {"euler_xyz_deg", vector3(u.euler_probing)}}},
             {"sigma_of_probing_in_scans",
-             {{"origin", vector3(u.origin_probing_in_scans)}, {"euler_xyz_deg", vector3(u.euler_probing_in_scans)}}},
-            {"sigma_from_noise", {{"origin", vector3(u.origin_noise)}, {"euler_xyz_deg", vector3(u.euler_noise)}}},
+             {{"origin", vector3(u.origin_probing_in_scans)},
+              {"euler_xyz_deg", vector3(u.euler_probing_in_scans)}}},
+            {"sigma_from_noise",
+             {{"origin", vector3(u.origin_noise)}, {"euler_xyz_deg", vector3(u.euler_noise)}}},
             {"scans", u.scans}};
     } else {
         j["uncertainty_95"] = nullptr;  // fewer than three registered scans: no honest estimate

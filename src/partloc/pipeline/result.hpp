@@ -45,7 +45,8 @@ struct Uncertainty {
     Eigen::Vector3d origin_scans = Eigen::Vector3d::Zero(), euler_scans = Eigen::Vector3d::Zero();    ///< jackknife
     Eigen::Vector3d origin_probing = Eigen::Vector3d::Zero(), euler_probing = Eigen::Vector3d::Zero();
     /// The part of the jackknife's scatter that the probing explains (scans differing in their fiducials).
-    Eigen::Vector3d origin_probing_in_scans = Eigen::Vector3d::Zero(), euler_probing_in_scans = Eigen::Vector3d::Zero();
+    Eigen::Vector3d origin_probing_in_scans = Eigen::Vector3d::Zero(),
+                    euler_probing_in_scans = Eigen::Vector3d::Zero();
     Eigen::Vector3d origin_noise = Eigen::Vector3d::Zero(), euler_noise = Eigen::Vector3d::Zero();
     int scans = 0;  ///< scans in the jackknife
 };

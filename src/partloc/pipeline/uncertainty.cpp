@@ -169,9 +169,9 @@ void estimate_uncertainty(const Job& job, const UncertaintyInputs& in, Workpiece
     // How much the jackknife's refits scatter from the probing alone (reported, not subtracted): where the
     // scans differ in their fiducials, leaving one out moves the part by part of the probing errors, which
     // the jackknife then counts among the scans' own. On seeds 2000-2199 (198 trials) it is 0.0034-0.0037 mm
-    // RMS of the jackknife's 0.0043-0.0051. Taken out of the jackknife, the intervals held the truth 91.9-96.0 %
-    // of the time (origin z lowest, 89.9 % on 2100-2199) against 93.9-97.5 % with it in: the scatter of three
-    // to six refits has heavy tails, and the double count pays for them.
+    // RMS of the jackknife's 0.0043-0.0051. Taken out of the jackknife, the intervals held the
+    // truth 91.9-96.0 % of the time (origin z lowest, 89.9 % on 2100-2199) against 93.9-97.5 % with it in:
+    // the scatter of three to six refits has heavy tails, and the double count pays for them.
     Matrix6d cov_probing_in_scans = Matrix6d::Zero();
     for (std::size_t f = 0; f < job.fiducials.size(); ++f) {
         const auto& fid = job.fiducials[f];
@@ -179,7 +179,8 @@ void estimate_uncertainty(const Job& job, const UncertaintyInputs& in, Workpiece
         if (sigma <= 0) continue;
         bool used = false;
         for (int i = 0; i < n && !used; ++i)
-            used = std::find(in.scan_fiducials[i].begin(), in.scan_fiducials[i].end(), f) != in.scan_fiducials[i].end();
+            used = std::find(in.scan_fiducials[i].begin(), in.scan_fiducials[i].end(), f) !=
+                   in.scan_fiducials[i].end();
         if (!used) continue;
         // f's probing error: sigma per axis in translation and sigma over half the block's size in each
         // turn, both about the block's centre; as a twist about the machine's origin.
@@ -204,7 +205,8 @@ void estimate_uncertainty(const Job& job, const UncertaintyInputs& in, Workpiece
     }
     cov_probing_in_scans *= jk;
     std::tie(u.origin_probing, u.euler_probing) = sigmas_at(full.origin, cov_probing);
-    std::tie(u.origin_probing_in_scans, u.euler_probing_in_scans) = sigmas_at(full.origin, cov_probing_in_scans);
+    std::tie(u.origin_probing_in_scans, u.euler_probing_in_scans) =
+        sigmas_at(full.origin, cov_probing_in_scans);
 
     // The noise: the fit's information matrix.
     const Matrix6d& info = in.information;

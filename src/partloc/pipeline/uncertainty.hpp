@@ -10,6 +10,8 @@
 //    it registers the same way, so it does not average out over scans;
 //  - the noise of the points, from the fit's information matrix: the bound that the points' number and
 //    scatter set. With the probing, the error that noise and probing alone would leave.
+// Reported as well: how much of the jackknife's scatter the probing alone explains, where scans differ in
+// their fiducials (it is not taken out; uncertainty.cpp says why).
 #include <Eigen/Geometry>
 #include <functional>
 #include <memory>
