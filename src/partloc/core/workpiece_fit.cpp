@@ -30,9 +30,6 @@ WorkpieceFit fit_reference_surfaces(const std::vector<Eigen::Vector3d>& merged, 
         last.push_back(merged[i]);
         if (normals) last_n.push_back((*normals)[i]);
     }
-    IcpSettings is;
-    is.max_distances = {fine};
-    is.max_iterations = 20;
     // Coarse to fine from nominal, from several first distances: the part sits millimetres and degrees off
     // nominal, and the widest stage also takes in points of faces that are not reference surfaces, near
     // them, which can hold the fit in a wrong place that the narrower stages then keep (measured: seed
@@ -56,7 +53,8 @@ WorkpieceFit fit_reference_surfaces(const std::vector<Eigen::Vector3d>& merged, 
             if (Eigen::AngleAxisd(d.linear()).angle() * D + d.translation().norm() < 0.1 * fine) continue;
         }
         coarse_prev = f;
-        const IcpResult g = icp_point_to_plane(last, reference, f.T_target_source, is, normals ? &last_n : nullptr);
+        const IcpResult g =
+            fit_last_stage(last, reference, f.T_target_source, fine, normals ? &last_n : nullptr);
         if (k == 0 || g.inliers > icp.inliers) {
             icp = g;
             first = f;
@@ -108,6 +106,15 @@ WorkpieceFit fit_reference_surfaces(const std::vector<Eigen::Vector3d>& merged, 
         fit.ok = true;
     }
     return fit;
+}
+
+IcpResult fit_last_stage(const std::vector<Eigen::Vector3d>& points, const Surface& reference,
+                         const Eigen::Isometry3d& T_nominal_machine, double distance,
+                         const std::vector<Eigen::Vector3d>* normals) {
+    IcpSettings is;
+    is.max_distances = {distance};
+    is.max_iterations = 20;
+    return icp_point_to_plane(points, reference, T_nominal_machine, is, normals);
 }
 
 std::string part_disowns_scan(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>* normals,

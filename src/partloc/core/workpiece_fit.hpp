@@ -5,6 +5,7 @@
 #include <vector>
 
 #include "partloc/core/geometry.hpp"
+#include "partloc/core/icp.hpp"
 #include "partloc/core/surface.hpp"
 
 namespace partloc {
@@ -39,6 +40,14 @@ struct WorkpieceFit {
 WorkpieceFit fit_reference_surfaces(const std::vector<Eigen::Vector3d>& merged, const Surface& reference,
                                     const WorkpieceFitSettings& settings,
                                     const std::vector<Eigen::Vector3d>* normals = nullptr);
+
+/// The fit's last stage on `points` (machine frame; `normals` optional, as in the fit) from the pose
+/// T_nominal_machine (the inverse of a fit's T_correction), at the last stage's correspondence distance
+/// (WorkpieceFit::distance): fit_reference_surfaces' own last stage, and the same fit again on other points
+/// (every scanned point near the surfaces, the uncertainty's jackknife).
+IcpResult fit_last_stage(const std::vector<Eigen::Vector3d>& points, const Surface& reference,
+                         const Eigen::Isometry3d& T_nominal_machine, double distance,
+                         const std::vector<Eigen::Vector3d>* normals = nullptr);
 
 /// Whether the part confirms a scan that one fiducial's fit alone registered (a look-alike of that fiducial,
 /// or the fiducial moved, can place such a scan): the part fitted again on the scan's workpiece points alone

@@ -683,10 +683,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
             pts.insert(pts.end(), o->points_.begin(), o->points_.end());
             nrm.insert(nrm.end(), o->normals_.begin(), o->normals_.end());
         }
-        IcpSettings is;
-        is.max_distances = {fit.distance};
-        is.max_iterations = 20;
-        const IcpResult r = icp_point_to_plane(pts, reference, T_nominal_machine, is, &nrm);
+        const IcpResult r = fit_last_stage(pts, reference, T_nominal_machine, fit.distance, &nrm);
         if (r.inliers >= fit.inliers) {
             fit_points = pts.size();
             fit.T_correction = r.T_target_source.inverse();

@@ -6,7 +6,7 @@
 #include <tuple>
 #include <utility>
 
-#include "partloc/core/icp.hpp"
+#include "partloc/core/workpiece_fit.hpp"
 
 namespace partloc {
 
@@ -61,9 +61,6 @@ void estimate_uncertainty(const Job& job, const UncertaintyInputs& in, Workpiece
             if (c.HasNormals()) nrm[i].push_back(c.normals_[k]);
         }
     }
-    IcpSettings is;
-    is.max_distances = {in.fit_distance};
-    is.max_iterations = 20;
     std::vector<Pose6> loo;
     std::vector<int> left_out;  // the scan each of loo left out
     for (int i = 0; i < n; ++i) {
@@ -83,7 +80,8 @@ void estimate_uncertainty(const Job& job, const UncertaintyInputs& in, Workpiece
             }
             continue;
         }
-        const IcpResult r = icp_point_to_plane(p, *in.reference, in.T_correction.inverse(), is, normals ? &q : nullptr);
+        const IcpResult r = fit_last_stage(p, *in.reference, in.T_correction.inverse(), in.fit_distance,
+                                           normals ? &q : nullptr);
         if (r.inliers < 100) continue;
         loo.push_back(pose6(r.T_target_source.inverse() * w.T_machine_workpiece_nominal));
         left_out.push_back(i);
@@ -131,38 +129,50 @@ void estimate_uncertainty(const Job& job, const UncertaintyInputs& in, Workpiece
         }
         part_jtj += scan_part_jtj[i];
     }
-    // The part's twist per unit of f's twist when the part is fitted on the scans `with` (weights W_s =
-    // (sum over `with` of H_s)^-1 H_s): for the full fit and for each of the jackknife's refits.
-    const auto part_per_fiducial = [&](std::size_t f, int without) {
+    // Each scan's twist per unit of each of its fiducials' twists, at axes 0 (f's share of the scan fit):
+    // moves[f] = (scan, matrix), scans ascending.
+    std::vector<std::vector<std::pair<int, Matrix6d>>> moves(job.fiducials.size());
+    for (int i = 0; i < n; ++i) {
+        const auto& ks = in.scan_fiducials[i];
+        const bool have_jtj =
+            i < static_cast<int>(in.scan_fiducial_jtj.size()) && in.scan_fiducial_jtj[i].size() == ks.size();
+        const bool have_motion = i < static_cast<int>(in.scan_fiducial_motion.size()) &&
+                                 in.scan_fiducial_motion[i].size() == ks.size();
+        const Eigen::Isometry3d Q = i < static_cast<int>(in.scan_to_axes0.size())
+                                        ? in.scan_to_axes0[i]
+                                        : Eigen::Isometry3d::Identity();
+        Matrix6d Hs = Matrix6d::Zero();
+        if (have_jtj)
+            for (const auto& Hf : in.scan_fiducial_jtj[i]) Hs += Hf;
+        for (std::size_t slot = 0; slot < ks.size(); ++slot) {
+            const Matrix6d share = have_jtj ? Matrix6d(Hs.ldlt().solve(in.scan_fiducial_jtj[i][slot]))
+                                            : Matrix6d(Matrix6d::Identity() / static_cast<double>(ks.size()));
+            const Eigen::Isometry3d G =
+                have_motion ? in.scan_fiducial_motion[i][slot] : Eigen::Isometry3d::Identity();
+            if (ks[slot] < moves.size()) moves[ks[slot]].emplace_back(i, adjoint(Q) * share * adjoint(G));
+        }
+    }
+    // Each scan's weight in the part's fit on every scan but `without` (-1: all of them): W_s = (sum over
+    // those of H)^-1 H_s; for the full fit and for each of the jackknife's refits.
+    const auto weights = [&](int without) {
         Matrix6d H = part_jtj;
         if (without >= 0) H -= scan_part_jtj[without];
         const Eigen::LDLT<Matrix6d> solver(H);
         const int with = n - (without >= 0 ? 1 : 0);
+        std::vector<Matrix6d> W(n, Matrix6d::Zero());
+        for (int i = 0; i < n; ++i)
+            if (i != without)
+                W[i] = H.isZero() ? Matrix6d(Matrix6d::Identity() / static_cast<double>(with))
+                                  : Matrix6d(solver.solve(scan_part_jtj[i]));
+        return W;
+    };
+    const std::vector<Matrix6d> W_full = weights(-1);
+    std::vector<std::vector<Matrix6d>> W_loo;
+    for (const int i : left_out) W_loo.push_back(weights(i));
+    // The part's twist per unit of f's twist, fitted with the weights W (a scan left out weighs nothing).
+    const auto part_per_fiducial = [&](std::size_t f, const std::vector<Matrix6d>& W) {
         Matrix6d M = Matrix6d::Zero();
-        for (int i = 0; i < n; ++i) {
-            if (i == without) continue;
-            const auto& ks = in.scan_fiducials[i];
-            const auto at = std::find(ks.begin(), ks.end(), f);
-            if (at == ks.end()) continue;
-            const std::size_t slot = static_cast<std::size_t>(at - ks.begin());
-            Matrix6d share = Matrix6d::Identity() / static_cast<double>(ks.size());
-            const bool have_jtj = i < static_cast<int>(in.scan_fiducial_jtj.size()) &&
-                                  in.scan_fiducial_jtj[i].size() == ks.size();
-            if (have_jtj) {
-                Matrix6d Hs = Matrix6d::Zero();
-                for (const auto& Hf : in.scan_fiducial_jtj[i]) Hs += Hf;
-                share = Hs.ldlt().solve(in.scan_fiducial_jtj[i][slot]);
-            }
-            const Eigen::Isometry3d G = i < static_cast<int>(in.scan_fiducial_motion.size()) &&
-                                                in.scan_fiducial_motion[i].size() == ks.size()
-                                            ? in.scan_fiducial_motion[i][slot]
-                                            : Eigen::Isometry3d::Identity();
-            const Eigen::Isometry3d Q =
-                i < static_cast<int>(in.scan_to_axes0.size()) ? in.scan_to_axes0[i] : Eigen::Isometry3d::Identity();
-            const Matrix6d W = H.isZero() ? Matrix6d::Identity() / static_cast<double>(with)
-                                          : Matrix6d(solver.solve(scan_part_jtj[i]));
-            M += W * adjoint(Q) * share * adjoint(G);
-        }
+        for (const auto& [i, K] : moves[f]) M += W[i] * K;
         return M;
     };
     Matrix6d cov_probing = Matrix6d::Zero();
@@ -177,11 +187,7 @@ void estimate_uncertainty(const Job& job, const UncertaintyInputs& in, Workpiece
         const auto& fid = job.fiducials[f];
         const double sigma = fid.pose_sigma;  // the loader sets the default, 0.005 mm; 0 means exact
         if (sigma <= 0) continue;
-        bool used = false;
-        for (int i = 0; i < n && !used; ++i)
-            used = std::find(in.scan_fiducials[i].begin(), in.scan_fiducials[i].end(), f) !=
-                   in.scan_fiducials[i].end();
-        if (!used) continue;
+        if (moves[f].empty()) continue;  // in no scan of the fit
         // f's probing error: sigma per axis in translation and sigma over half the block's size in each
         // turn, both about the block's centre; as a twist about the machine's origin.
         const auto box = bounding_box(fid.model);
@@ -192,12 +198,12 @@ void estimate_uncertainty(const Job& job, const UncertaintyInputs& in, Workpiece
         about.translation() = fid.T_machine_fiducial * box.center();
         const Matrix6d A = adjoint(about);
         const Matrix6d cov_f = A * var.asDiagonal() * A.transpose();
-        const Matrix6d M = part_per_fiducial(f, -1);
+        const Matrix6d M = part_per_fiducial(f, W_full);
         cov_probing += M * cov_f * M.transpose();
         std::vector<Matrix6d> Ms;
         Matrix6d mean = Matrix6d::Zero();
-        for (const int i : left_out) {
-            Ms.push_back(part_per_fiducial(f, i));
+        for (const auto& W : W_loo) {
+            Ms.push_back(part_per_fiducial(f, W));
             mean += Ms.back();
         }
         mean /= static_cast<double>(m);

@@ -56,7 +56,8 @@ struct UncertaintyInputs {
     double noise = 0.0;          ///< scan noise, 1 sigma
     Matrix6d information = Matrix6d::Zero();  ///< the fit's, machine frame, twist [w, v] (JtJ / noise^2)
     /// The part's fit again on other points (machine frame, normals or null), from the full fit's pose:
-    /// the T_correction it finds. Empty: point-to-plane on `reference` from T_correction.
+    /// the T_correction it finds. Empty: the part fit's last stage (fit_last_stage) on `reference` from
+    /// T_correction.
     std::function<std::optional<Eigen::Isometry3d>(const std::vector<Eigen::Vector3d>&,
                                                    const std::vector<Eigen::Vector3d>*)>
         refit;
