@@ -38,6 +38,11 @@ struct PreparedScan {
     std::vector<Eigen::Vector3d> coarse_points, coarse_normals;  ///< at the PPF sampling
     Eigen::Vector3d viewpoint = Eigen::Vector3d::Zero();           ///< scanner position, scan frame
     Scale scale;
+    /// Normals (either sign) of cloud's points for the scan's pose fits (fit_scan_pose), each computed the
+    /// first time a fit takes its point and kept: the hypotheses' fits, the joint fit and the fiducials' own
+    /// fits take mostly the same points. Zero where not computed yet. Filled through a const PreparedScan:
+    /// one scan's fits run one after another, never at once.
+    std::shared_ptr<std::vector<Eigen::Vector3d>> fit_normals;
 };
 
 /// A search tree on the scan, and for the global fit a voxel grid at `sampling` with normals oriented to the

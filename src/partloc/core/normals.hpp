@@ -29,6 +29,16 @@ void orient_towards(const std::vector<Eigen::Vector3d>& points, std::vector<Eige
 /// The normal n of the point p facing `viewpoint`; a zero normal becomes the direction to it (or +z).
 Eigen::Vector3d facing(const Eigen::Vector3d& n, const Eigen::Vector3d& p, const Eigen::Vector3d& viewpoint);
 
+/// Points thinned to one per cube of `cell` (the mean of the points in it), each with the normal of the
+/// points within the cube of twice `cell` around its own (the least axis of their covariance, from sums kept
+/// per cube of half `cell`: no neighbour search), facing `viewpoint`. The output follows the order in which
+/// the points first reach each cube. Empty when `cell` is not > 0.
+struct OrientedSample {
+    std::vector<Eigen::Vector3d> points, normals;
+};
+OrientedSample voxel_normals(const std::vector<Eigen::Vector3d>& points, double cell,
+                             const Eigen::Vector3d& viewpoint);
+
 /// Unit normal, either sign, of the points pts[idx]: the least axis of their covariance; zero for fewer than
 /// three points or a degenerate neighbourhood.
 Eigen::Vector3d pca_normal(const std::vector<Eigen::Vector3d>& pts, const std::vector<int>& idx);

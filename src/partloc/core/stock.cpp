@@ -13,80 +13,18 @@
 #include <stdexcept>
 #include <vector>
 
+#include "partloc/core/cell_key.hpp"
 #include "partloc/core/radius_grid.hpp"
 
 namespace partloc {
 namespace {
 
-// Grid cells by integer coordinates, 21 bits each, packed into one key (z highest): ascending keys run x
-// fastest, then y, then z. A cell of the surface grid is named by its lowest corner.
-using Key = std::uint64_t;
-constexpr int kBits = 21;
-constexpr Key kMask = (Key{1} << kBits) - 1;
-constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
-
-Key pack(const Eigen::Array3i& c) {
-    return static_cast<Key>(c.x()) | static_cast<Key>(c.y()) << kBits |
-           static_cast<Key>(c.z()) << (2 * kBits);
-}
-Eigen::Array3i unpack(Key k) {
-    return {static_cast<int>(k & kMask), static_cast<int>((k >> kBits) & kMask),
-            static_cast<int>((k >> (2 * kBits)) & kMask)};
-}
-
-// Cubic cells of `edge` from `origin`: cell c spans origin + edge * [c, c + 1).
-struct Lattice {
-    Eigen::Vector3d origin = Eigen::Vector3d::Zero();
-    double edge = 1.0;
-    Eigen::Array3i cell_of(const Eigen::Vector3d& p) const {
-        return ((p - origin) / edge).array().floor().cast<int>();
-    }
-    Eigen::Vector3d at(const Eigen::Array3i& c) const { return origin + edge * c.cast<double>().matrix(); }
-};
-
-// Key -> index, open addressing with linear probing, growing at half full: a few thousand occupied cubes or
-// bricks out of a box of billions.
-class KeyIndex {
-public:
-    KeyIndex() { rehash(1024); }
-    /// The key's value, kNone when absent.
-    std::uint32_t find(Key key) const {
-        for (std::size_t s = slot(key);; s = (s + 1) & mask_) {
-            if (keys_[s] == key) return values_[s];
-            if (keys_[s] == kEmpty) return kNone;
-        }
-    }
-    /// Adds a key that is not there.
-    void add(Key key, std::uint32_t value) {
-        if (2 * (size_ + 1) > keys_.size()) rehash(2 * keys_.size());
-        place(key, value);
-        ++size_;
-    }
-
-private:
-    static constexpr Key kEmpty = ~Key{0};
-    std::size_t slot(Key key) const {
-        return static_cast<std::size_t>((key * 0x9E3779B97F4A7C15ull) >> 24) & mask_;
-    }
-    void place(Key key, std::uint32_t value) {
-        std::size_t s = slot(key);
-        while (keys_[s] != kEmpty) s = (s + 1) & mask_;
-        keys_[s] = key;
-        values_[s] = value;
-    }
-    void rehash(std::size_t capacity) {
-        std::vector<Key> keys(capacity, kEmpty);
-        std::vector<std::uint32_t> values(capacity, kNone);
-        keys.swap(keys_);
-        values.swap(values_);
-        mask_ = capacity - 1;
-        for (std::size_t i = 0; i < keys.size(); ++i)
-            if (keys[i] != kEmpty) place(keys[i], values[i]);
-    }
-    std::vector<Key> keys_;
-    std::vector<std::uint32_t> values_;
-    std::size_t mask_ = 0, size_ = 0;
-};
+using cells::Key;
+using cells::KeyIndex;
+using cells::kNone;
+using cells::Lattice;
+using cells::pack;
+using cells::unpack;
 
 // Key -> index for the grid's corners and cells, in bricks of 4^3: a hash of the bricks (small enough to stay
 // in cache) and a dense block of 64 indices each, so that a cell's neighbours are mostly in one block. With a
@@ -521,8 +459,8 @@ std::shared_ptr<open3d::geometry::TriangleMesh> build_stock(const open3d::geomet
     const double spacing = surface_spacing(points.points_, st.spacing);
     const double reach = st.radius * spacing;
     Lattice lattice;
-    lattice.edge =
-        std::max(st.voxel * spacing, (box.GetMaxExtent() + 4 * reach) / static_cast<double>(kMask / 2));
+    lattice.edge = std::max(st.voxel * spacing,
+                            (box.GetMaxExtent() + 4 * reach) / static_cast<double>(cells::kMask / 2));
     // Room below the points for the band's growth and the field's cubes around it.
     lattice.origin = box.min_bound_ - Eigen::Vector3d::Constant(2 * reach + 4 * lattice.edge);
     const ImlsField field(points.points_, points.normals_, lattice.origin - Eigen::Vector3d::Constant(reach),
