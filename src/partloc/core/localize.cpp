@@ -322,10 +322,10 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
     for (std::size_t i = 0; i < screened.size() && static_cast<int>(i) < st.verified; ++i) {
         const auto& c = screened[i];
         // Past the first, a candidate whose quick verification found five times the evidence against that a
-        // fit may have is not fitted finely: of 492 candidates verified on the first eight cells of seeds
-        // 1500-1519, the 94 accepted had at most 3.2 times (violation 0.159 of 0.05) before their fine fit;
-        // 98 others had more than 5. The first stays, so that a fiducial's reason in the report is its best
-        // candidate's.
+        // fit may have is not fitted finely: of 570 candidates verified in the first ten cells of seeds
+        // 1500-1519 (bench/results/candidates_gate_1500.txt), the 107 accepted had at most 3.3 times before
+        // their fine fit; 96 others past the first had more than 5. The first stays, so that a fiducial's
+        // reason in the report is its best candidate's.
         if (i > 0 && c.against > 5.0) continue;
         const auto local_all = points_near(scan, c.centre, radius);
         // Down to a quarter of the sampling on a subsample, then every point at the noise's scale: a face
