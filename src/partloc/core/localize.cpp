@@ -40,8 +40,7 @@ PreparedScan prepare_scan(const open3d::geometry::PointCloud& points, const Scal
     s.cloud = std::make_shared<open3d::geometry::PointCloud>();
     s.cloud->points_ = points.points_;
     s.grid = std::make_shared<RadiusGrid>(s.cloud->points_, sampling);
-    s.fit_normals =
-        std::make_shared<std::vector<Eigen::Vector3d>>(s.cloud->points_.size(), Eigen::Vector3d::Zero());
+    s.fit_normals = std::make_shared<PreparedScan::PointNormals>();
     // The screening takes at most 1500 points of the thousands around a candidate: a quarter of the scan
     // serves (the points around a fiducial in a scan of 250 k points number 10-50 thousand).
     s.sparse_stride = s.cloud->points_.size() > 40000 ? 4 : 1;
@@ -143,20 +142,24 @@ std::vector<Eigen::Vector3d> points_near(const PreparedScan& scan, const Eigen::
 std::vector<Eigen::Vector3d> fit_normals_of(const PreparedScan& scan, const std::vector<int>& idx,
                                             const std::vector<Eigen::Vector3d>& around,
                                             const std::vector<int>& around_idx) {
-    auto& cache = *scan.fit_normals;
+    auto& kept = *scan.fit_normals;
     std::vector<std::size_t> missing;  // positions in `around`
     for (int k : idx)
-        if (cache[k].squaredNorm() == 0.0)
+        if (kept.at.find(static_cast<cells::Key>(k)) == cells::kNone)
             missing.push_back(std::lower_bound(around_idx.begin(), around_idx.end(), k) - around_idx.begin());
     if (!missing.empty()) {
         const auto n = around.size() < 3
                            ? std::vector<Eigen::Vector3d>(missing.size(), Eigen::Vector3d::UnitZ())
                            : estimate_normals(around, 3.0 * scan.scale.spacing, 20, &missing);
-        for (std::size_t j = 0; j < missing.size(); ++j) cache[around_idx[missing[j]]] = n[j];
+        for (std::size_t j = 0; j < missing.size(); ++j) {
+            kept.at.add(static_cast<cells::Key>(around_idx[missing[j]]),
+                        static_cast<std::uint32_t>(kept.normals.size()));
+            kept.normals.push_back(n[j]);
+        }
     }
     std::vector<Eigen::Vector3d> out;
     out.reserve(idx.size());
-    for (int k : idx) out.push_back(cache[k]);
+    for (int k : idx) out.push_back(kept.normals[kept.at.find(static_cast<cells::Key>(k))]);
     return out;
 }
 
