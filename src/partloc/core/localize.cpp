@@ -58,7 +58,8 @@ PreparedScan prepare_scan(const open3d::geometry::PointCloud& points, const Scal
     // cube of twice the sampling around it, from sums kept per cube (voxel_normals). Before, the scan was
     // thinned to half the sampling, each of those points got a normal from its neighbours within 1.5 x the
     // sampling (a neighbour search each), and the normals were averaged per cube of the sampling: 0.83 of
-    // 6.5 s CPU on seed 106, against 0.15 now; and 569 scans right on seeds 2200-2299, against 585 now.
+    // 6.5 s CPU on seed 106, ten times voxel_normals' time (`partloc_bench normals`); and 569 scans right on
+    // seeds 2200-2299, against 585 now.
     OrientedSample coarse = voxel_normals(s.cloud->points_, sampling, s.viewpoint);
     s.coarse_points = std::move(coarse.points);
     s.coarse_normals = std::move(coarse.normals);
@@ -384,8 +385,10 @@ ScanPoseFit fit_scan_pose(const PreparedScan& scan, const std::vector<const Prep
         start = std::max(start, std::max(t.vs.inlier_distance, 0.25 * m.sampling));
         const Eigen::Isometry3d& F = T_machine_model[g];
         const Eigen::Isometry3d T_scan_model = init.inverse() * F;
-        // The points around the fiducial; their normals come from all of them (the fiducial's points lie a
-        // sampling or more inside this ball, and the normals' radius is less than that).
+        // The points around the fiducial; their normals come from all of them: the ball reaches two samplings
+        // past the fiducial, the normals' radius (three spacings) is at most 1.2 samplings, and the points
+        // taken lie within twice the first stage's distance of its surface (so only those at its far corners,
+        // in the hypotheses' fits, can miss a neighbour).
         std::vector<int> local_idx;
         scan.grid->within(T_scan_model * m.dense.center, m.dense.diameter / 2.0 + 2.0 * m.sampling,
                           local_idx);

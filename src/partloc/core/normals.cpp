@@ -67,7 +67,7 @@ OrientedSample voxel_normals(const std::vector<Eigen::Vector3d>& points, double 
                              const Eigen::Vector3d& viewpoint) {
     // Sums per cube of half the cell; a normal from the 4 x 4 x 4 of them around its cell: a cube of twice
     // the cell. With the 27 cells around (three times the cell), seed 11's test cell lost two scans that see
-    // fiducial A well (its right pose no longer among the candidates), and seeds 2200-2299 registered 571
+    // fiducial A well (no fiducial fits), and seeds 2200-2299 registered 571
     // scans right; with twice the cell 585 (569 with the normals of each point of a grid of half the cell,
     // from its neighbours within 1.5 cells, averaged per cell, as before).
     constexpr int sub = 2, margin = 1;

@@ -23,7 +23,7 @@ struct PpfSettings {
     /// thousand points at the sampling, so this decides their stride). 600 (two fifths fewer references; with
     /// the gate on the fine fits and the joint fit's one stage, localize.cpp) registered 586 scans right on
     /// seeds 2200-2299 (585 with 1000 and neither), but lost a scan of test seed 11 and one
-    /// of the paper's test 2 (their right candidates not found); 800 lost one of them.
+    /// of the paper's test 2 (no fiducial fits); 800 lost one of them.
     int min_references = 1000;
     double coplanar_deg = 8.0;  ///< a pair whose normals and joining line are within this of coplanar is skipped
     /// Pose clusters returned, most votes first; each is screened by a coarse fit (a third of a scan's time at
