@@ -123,9 +123,13 @@ Thresholds thresholds(const PreparedScan& scan, const PreparedModel& model) {
     return t;
 }
 
+/// The cloud's points within `radius` of `centre`, by ascending index; their indices too when `indices` is
+/// not null.
 std::vector<Eigen::Vector3d> points_near(const open3d::geometry::PointCloud& cloud, const RadiusGrid& grid,
-                                         const Eigen::Vector3d& centre, double radius) {
-    std::vector<int> idx;
+                                         const Eigen::Vector3d& centre, double radius,
+                                         std::vector<int>* indices = nullptr) {
+    std::vector<int> own;
+    std::vector<int>& idx = indices ? *indices : own;
     grid.within(centre, radius, idx);  // ascending: the result must not vary
     std::vector<Eigen::Vector3d> out;
     out.reserve(idx.size());
@@ -164,14 +168,19 @@ std::vector<Eigen::Vector3d> fit_normals_of(const PreparedScan& scan, const std:
     return out;
 }
 
+/// Whether the point p (the points' frame) lies within `distance` of the surface.
+bool near_surface(const Surface& surface, const Eigen::Isometry3d& T_surface_pts, const Eigen::Vector3d& p,
+                  double distance) {
+    double d2 = 0.0;
+    return surface.nearest(T_surface_pts * p, &d2, distance) >= 0;
+}
+
 std::vector<Eigen::Vector3d> points_near_surface(const std::vector<Eigen::Vector3d>& pts, const Surface& surface,
                                                 const Eigen::Isometry3d& T_surface_pts, double distance) {
     std::vector<Eigen::Vector3d> out;
     out.reserve(pts.size());
-    for (const auto& p : pts) {
-        double d2 = 0.0;
-        if (surface.nearest(T_surface_pts * p, &d2, distance) >= 0) out.push_back(p);
-    }
+    for (const auto& p : pts)
+        if (near_surface(surface, T_surface_pts, p, distance)) out.push_back(p);
     return out;
 }
 
@@ -258,7 +267,7 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
         Eigen::Vector3d centre;  ///< of the points around the candidate (scan frame)
         double support = 0.0;
         double against = 0.0;  ///< the quick verification's evidence against, per its limit (the larger)
-        bool passed = false;
+        bool passed() const { return against <= 2.0; }
     };
     std::vector<Screened> screened;
     IcpSettings coarse = t.is;
@@ -305,11 +314,10 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
         const double against = std::max(f.violation / st.max_violation, f.overflow / st.max_overflow);
         c.support = support(f) * std::max(0.0, 1.0 - 0.5 * against);
         c.against = against;
-        c.passed = against <= 2.0;
         screened.push_back(std::move(c));
     }
     std::stable_sort(screened.begin(), screened.end(), [](const Screened& a, const Screened& b) {
-        if (a.passed != b.passed) return a.passed;
+        if (a.passed() != b.passed()) return a.passed();
         return a.support > b.support;
     });
     IcpSettings fine = t.is;
@@ -390,21 +398,13 @@ ScanPoseFit fit_scan_pose(const PreparedScan& scan, const std::vector<const Prep
         // taken lie within twice the first stage's distance of its surface (so only those at its far corners,
         // in the hypotheses' fits, can miss a neighbour).
         std::vector<int> local_idx;
-        scan.grid->within(T_scan_model * m.dense.center, m.dense.diameter / 2.0 + 2.0 * m.sampling,
-                          local_idx);
-        std::vector<Eigen::Vector3d> local;
-        local.reserve(local_idx.size());
-        for (int k : local_idx) local.push_back(scan.cloud->points_[k]);
+        const auto local = points_near(*scan.cloud, *scan.grid, T_scan_model * m.dense.center,
+                                       m.dense.diameter / 2.0 + 2.0 * m.sampling, &local_idx);
         std::vector<int> near;  // indices of the scan's points
-        {
-            const Eigen::Isometry3d T_model_scan = T_scan_model.inverse();
-            const double distance = 2.0 * std::max(start, start_distance);
-            for (std::size_t j = 0; j < local.size(); ++j) {
-                double d2 = 0.0;
-                if (m.dense.nearest(T_model_scan * local[j], &d2, distance) >= 0)
-                    near.push_back(local_idx[j]);
-            }
-        }
+        const Eigen::Isometry3d T_model_scan = T_scan_model.inverse();
+        const double distance = 2.0 * std::max(start, start_distance);
+        for (std::size_t j = 0; j < local.size(); ++j)
+            if (near_surface(m.dense, T_model_scan, local[j], distance)) near.push_back(local_idx[j]);
         // The points' own normals keep a narrow face's plane from taking the points of the faces beside it
         // (those lie within the correspondence distance of its plane near the edge, all on one side): on
         // a weakly held direction that bias reached 0.3 mm (seed 3, scan 3), 0.003 mm with the check.

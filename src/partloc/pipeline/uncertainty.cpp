@@ -144,8 +144,9 @@ void estimate_uncertainty(const Job& job, const UncertaintyInputs& in, Workpiece
         Matrix6d Hs = Matrix6d::Zero();
         if (have_jtj)
             for (const auto& Hf : in.scan_fiducial_jtj[i]) Hs += Hf;
+        const Eigen::LDLT<Matrix6d> scan_solver(Hs);  // once per scan, for each of its fiducials
         for (std::size_t slot = 0; slot < ks.size(); ++slot) {
-            const Matrix6d share = have_jtj ? Matrix6d(Hs.ldlt().solve(in.scan_fiducial_jtj[i][slot]))
+            const Matrix6d share = have_jtj ? Matrix6d(scan_solver.solve(in.scan_fiducial_jtj[i][slot]))
                                             : Matrix6d(Matrix6d::Identity() / static_cast<double>(ks.size()));
             const Eigen::Isometry3d G =
                 have_motion ? in.scan_fiducial_motion[i][slot] : Eigen::Isometry3d::Identity();
