@@ -330,3 +330,52 @@ TEST(Threads, OneAndTwoThreadsGiveTheSameBits) {
     EXPECT_EQ(r[0].stock->vertices_, r[1].stock->vertices_);
     EXPECT_EQ(r[0].stock->triangles_, r[1].stock->triangles_);
 }
+
+// Issue 3: where the first fiducial's fit already has every other fiducial pass its checks where it predicts
+// it, the others' own searches are skipped. They place the scans as searching every fiducial does, and the
+// skipped fiducial's fit in the result is its judgement at the truth's pose.
+TEST(SkippedSearches, PlaceTheScansAsSearchingEveryFiducialDoes) {
+    open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
+    const sim::SimulatedJob sj = sim::simulate_random_cell(12);
+    JobResult r[2];
+    for (int every : {0, 1}) {
+        RunSettings rs;
+        rs.build_stock = false;
+        rs.search_every_fiducial = every;
+        r[every] = run_job(sj.job, rs);
+    }
+    ASSERT_EQ(r[0].scans.size(), r[1].scans.size());
+    const Eigen::Vector3d at = sj.truth.T_machine_workpiece.translation();
+    int skipped = 0, registered = 0;
+    for (std::size_t i = 0; i < r[0].scans.size(); ++i) {
+        const ScanResult& lazy = r[0].scans[i];
+        const ScanResult& every = r[1].scans[i];
+        SCOPED_TRACE(lazy.file + ": " + lazy.message + " / " + every.message);
+        EXPECT_EQ(lazy.registered, every.registered);
+        for (const auto& f : every.fits) EXPECT_GT(f.candidates, 0) << f.fiducial << " was searched";
+        for (const auto& f : lazy.fits) {
+            if (f.candidates > 0) continue;  // searched
+            ++skipped;
+            // Not searched: judged where the first fiducial put the scanner, which is right.
+            ASSERT_TRUE(lazy.registered);
+            EXPECT_TRUE(f.accepted) << f.reason;
+            const Eigen::Isometry3d Tf = sj.truth.T_machine_fiducial.at(f.fiducial);
+            const PoseError e = pose_error(sj.truth.scans[i].T_machine_scan * f.T_scan_fiducial, Tf);
+            EXPECT_LT(e.translation, 0.1);
+            EXPECT_LT(e.rotation_deg, 0.1);
+        }
+        if (!lazy.registered || !every.registered) continue;
+        ++registered;
+        EXPECT_EQ(lazy.fiducials, every.fiducials);
+        const Eigen::Isometry3d D = lazy.T_machine_scan * every.T_machine_scan.inverse();
+        EXPECT_LT((D * at - at).norm(), 0.005);
+        EXPECT_LT(rotation_angle_deg(D.linear()), 0.005);
+    }
+    std::printf("%d scans registered both ways; %d fiducial searches skipped\n", registered, skipped);
+    EXPECT_GE(skipped, 1);
+    EXPECT_GE(registered, 3);
+    ASSERT_TRUE(r[0].located && r[1].located);
+    const PoseError e = pose_error(r[0].workpiece.T_machine_workpiece, r[1].workpiece.T_machine_workpiece);
+    EXPECT_LT(e.translation, 0.005);
+    EXPECT_LT(e.rotation_deg, 0.005);
+}
