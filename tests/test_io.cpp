@@ -801,6 +801,7 @@ TEST(Outputs, ResultJsonHoldsSpecFieldsAndAdditions) {
     ASSERT_EQ(s0.at("fits").size(), 1u);
     EXPECT_EQ(s0.at("fits")[0].at("fiducial"), "A<&>");
     EXPECT_EQ(s0.at("fits")[0].at("inliers"), 900);
+    EXPECT_EQ(s0.at("fits")[0].at("searched"), true);
     const auto& s1 = j.at("scans")[1];
     EXPECT_EQ(s1.at("status"), "rejected");
     EXPECT_TRUE(s1.at("T_machine_scan").is_null());

@@ -87,6 +87,9 @@ struct FiducialFit {
     std::size_t observed = 0;      ///< ray bins of model surface observed (see Verification)
     std::size_t seen_through = 0;  ///< ray bins of model surface the scanner saw through
     int candidates = 0;         ///< global-fit candidates examined
+    /// False: not searched on its own, but judged where another fiducial's fit put the scanner (the scan's
+    /// placement needed no search of it).
+    bool searched = true;
     /// Sum of J J^T over the inliers in the fiducial frame, J = [p x n; n]; information = JtJ / noise^2.
     Matrix6d JtJ = Matrix6d::Zero();
 };

@@ -312,11 +312,11 @@ std::string render_report_html(const Job& job, const JobResult& result, const Re
         for (const FiducialFit& fit : s.fits)
             h << "<tr><td>" << escape_html(fit.fiducial)
               << "</td><td class=" << (fit.accepted ? "reg>accepted" : "rej>rejected")
-              << "</td><td class=num>" << fixed(fit.score, 2) << "</td><td class=num>" << f.length(fit.rmse)
-              << "</td><td class=num>" << fixed(fit.coverage, 3) << "</td><td class=num>"
-              << fixed(fit.violation, 3) << "</td><td class=num>" << fixed(fit.conditioning, 4)
-              << "</td><td class=num>" << fit.inliers << "</td><td>" << escape_html(fit.reason)
-              << "</td></tr>\n";
+              << (fit.searched ? "" : " where the others put it") << "</td><td class=num>"
+              << fixed(fit.score, 2) << "</td><td class=num>" << f.length(fit.rmse) << "</td><td class=num>"
+              << fixed(fit.coverage, 3) << "</td><td class=num>" << fixed(fit.violation, 3)
+              << "</td><td class=num>" << fixed(fit.conditioning, 4) << "</td><td class=num>" << fit.inliers
+              << "</td><td>" << escape_html(fit.reason) << "</td></tr>\n";
         h << "</table>\n";
     }
 

@@ -46,6 +46,7 @@ Json fit_json(const FiducialFit& f) {
     j["conditioning"] = number(f.conditioning);
     j["score"] = number(f.score);
     j["inliers"] = f.inliers;
+    j["searched"] = f.searched;
     return j;
 }
 

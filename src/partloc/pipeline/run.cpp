@@ -285,17 +285,25 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
                 }
             }
         };
-        // The first fiducial is searched alone. A hypothesis from it under which every other fiducial passes
-        // its checks where its probed pose puts it, and none is contradicted, is already corroborated: a
-        // look-alike rarely has every other fiducial in the right place beside it. The others' own searches
-        // could then only add hypotheses of the same placement, or lone ones that do not outweigh it; they
-        // are skipped (seed 106: four scans of six; the voting and the candidates' fits are about two thirds
-        // of a scan's time). Otherwise the rest are searched together, in one pass over the scan's pairs.
+        // The first fiducial is searched alone. A hypothesis from it under which at least one other fiducial
+        // passes its checks where its probed pose puts it, none is contradicted, and every other fiducial
+        // either passes too or shows nothing there (out of view or hidden: no points on it, none seen
+        // through it), is already corroborated: a look-alike rarely has another fiducial in the right place
+        // beside it. The others' own searches could then only add hypotheses of the same placement, or lone
+        // ones that do not outweigh it; they are skipped (seed 106: four scans of six; the voting and the
+        // candidates' fits are about two thirds of a scan's time). Otherwise the rest are searched together,
+        // in one pass over the scan's pairs.
         search({0});
-        const bool settled = !settings.search_every_fiducial &&
-                             std::any_of(hyps.begin(), hyps.end(), [&](const Hypothesis& h) {
-                                 return h.contradicted.empty() && h.names.size() == M && M > 1;
-                             });
+        const auto settles = [&](const Hypothesis& h) {
+            if (!h.contradicted.empty() || h.names.size() < 2) return false;
+            for (std::size_t g = 1; g < M; ++g) {
+                const FiducialFit& e = h.judged[g];
+                if (!e.accepted && (e.inliers >= ls.min_inliers || e.seen_through >= 20)) return false;
+            }
+            return true;
+        };
+        const bool settled =
+            !settings.search_every_fiducial && std::any_of(hyps.begin(), hyps.end(), settles);
         if (!settled && M > 1) {
             std::vector<std::size_t> rest;
             for (std::size_t k = 1; k < M; ++k) rest.push_back(k);
@@ -334,8 +342,8 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         }
         for (std::size_t k = 0; k < M; ++k) {
             if (!searched[k]) {
-                r.fits.push_back(
-                    top->judged[k]);  // settled: judged where the winner puts it, no search of its own
+                r.fits.push_back(top->judged[k]);  // settled: judged where the winner puts it
+                r.fits.back().searched = false;
             } else if (candidates[k].empty()) {
                 FiducialFit none;
                 none.fiducial = models[k].name;
