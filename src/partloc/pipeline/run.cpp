@@ -84,7 +84,9 @@ struct ScanWork {
         for (std::size_t k : idx)
             if (c.normals_[k].squaredNorm() == 0.0) missing.push_back(k);
         if (missing.empty()) return;
-        const auto n = estimate_normals(c.points_, 3.5 * scale.spacing, 30, &missing);
+        // 2.5 spacings, about twenty points: 3.5 spacings and thirty took a fifth more of the merge's time
+        // (seed 106). They tell the faces apart in the part's fit and orient the stock's surface.
+        const auto n = estimate_normals(c.points_, 2.5 * scale.spacing, 20, &missing);
         for (std::size_t j = 0; j < missing.size(); ++j)
             c.normals_[missing[j]] = facing(n[j], c.points_[missing[j]], eye);
     }
