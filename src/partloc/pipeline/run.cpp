@@ -287,29 +287,30 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
                 }
             }
         };
-        // The first fiducial is searched alone. A hypothesis from it under which at least one other fiducial
-        // passes its checks where its probed pose puts it, none is contradicted, and every other fiducial
-        // either passes too or shows nothing there (out of view or hidden: no points on it, none seen
-        // through it), is already corroborated: a look-alike rarely has another fiducial in the right place
-        // beside it. The others' own searches could then only add hypotheses of the same placement, or lone
-        // ones that do not outweigh it; they are skipped (seed 106: four scans of six; the voting and the
-        // candidates' fits are about two thirds of a scan's time). Otherwise the rest are searched together,
-        // in one pass over the scan's pairs.
-        search({0});
+        // The fiducials are searched one at a time, in the job's order. A hypothesis under which at least one
+        // other fiducial passes its checks where its probed pose puts it, none is contradicted, and every
+        // fiducial not yet searched either passes too or shows nothing there (out of view or hidden: no
+        // points on it, none seen through it), is already corroborated: a look-alike rarely has another
+        // fiducial in the right place beside it. The searches not yet made could then only add hypotheses of
+        // the same placement, or lone ones that do not outweigh it; they are skipped (seed 106: four scans of
+        // six skip B; the voting and the candidates' fits are about two thirds of a scan's time).
         const auto settles = [&](const Hypothesis& h) {
             if (!h.contradicted.empty() || h.names.size() < 2) return false;
-            for (std::size_t g = 1; g < M; ++g) {
+            for (std::size_t g = 0; g < M; ++g) {
                 const FiducialFit& e = h.judged[g];
-                if (!e.accepted && (e.inliers >= ls.min_inliers || e.seen_through >= 20)) return false;
+                if (!searched[g] && !e.accepted && (e.inliers >= ls.min_inliers || e.seen_through >= 20))
+                    return false;
             }
             return true;
         };
-        const bool settled =
-            !settings.search_every_fiducial && std::any_of(hyps.begin(), hyps.end(), settles);
-        if (!settled && M > 1) {
-            std::vector<std::size_t> rest;
+        search({0});
+        if (settings.search_every_fiducial) {
+            std::vector<std::size_t> rest;  // together, in one pass over the scan's pairs
             for (std::size_t k = 1; k < M; ++k) rest.push_back(k);
-            search(rest);
+            if (!rest.empty()) search(rest);
+        } else {
+            for (std::size_t k = 1; k < M && !std::any_of(hyps.begin(), hyps.end(), settles); ++k)
+                search({k});
         }
         // Two fiducials whose own fits put the scanner at about the same place corroborate each other: a
         // look-alike rarely has a second look-alike in the right place beside it. Where such a hypothesis
