@@ -277,7 +277,8 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
     VerifySettings quick = t.vs;
     quick.inlier_distance = std::max(t.vs.inlier_distance, 0.25 * s);  // before the fine fit
     const double radius = model.dense.diameter / 2.0 + 2.0 * s;
-    const int n = std::min<int>(st.candidates, static_cast<int>(candidates.size()));
+    // Every candidate the global fit returns (at most PpfSettings::max_candidates) is screened.
+    const int n = static_cast<int>(candidates.size());
     for (int i = 0; i < n; ++i) {
         const Eigen::Isometry3d& T_sm = candidates[i].T_scene_model;
         Screened c;

@@ -95,8 +95,7 @@ struct FiducialFit {
 };
 
 struct LocalizeSettings {
-    int candidates = 32;            ///< global-fit candidates screened by a coarse fit
-    int verified = 3;               ///< of those, the best refined finely and verified
+    int verified = 3;  ///< of the global fit's candidates, the best screened refined finely and verified
     double min_coverage = 0.30;     ///< of the model surface facing the scanner
     double max_violation = 0.05;    ///< of nearby points seen inside the model
     double min_conditioning = 0.003; ///< a plane alone gives 0; a corner about 0.1-0.3
