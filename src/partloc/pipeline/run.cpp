@@ -345,7 +345,9 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         }
         for (std::size_t k = 0; k < M; ++k) {
             if (!searched[k]) {
-                r.fits.push_back(top->judged[k]);  // settled: judged where the winner puts it
+                // Not searched only when a hypothesis settled the scan; that one is corroborated and not
+                // refuted, so there is a winner. Judged where the winner puts it.
+                r.fits.push_back(top->judged[k]);
                 r.fits.back().searched = false;
             } else if (candidates[k].empty()) {
                 FiducialFit none;

@@ -12,8 +12,9 @@ struct RunSettings {
     int threads = 0;         ///< 0: all cores. Results do not depend on it.
     std::uint64_t seed = 1;  ///< seeds every random choice; same seed, same result
     bool build_stock = true; ///< triangulate the merged workpiece points into result.stock
-    /// Search every fiducial in every scan on its own, also where the first fiducial's fit already has
-    /// every other one in place (for tests and benchmarks that compare the two; slower, same placements).
+    /// Search every fiducial in every scan on its own (the rest together after the first), also where an
+    /// earlier fiducial's fit already settles the scan (for tests and benchmarks that compare the two;
+    /// slower, same placements).
     bool search_every_fiducial = false;
 };
 
