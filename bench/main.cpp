@@ -12,6 +12,9 @@
 //       workpiece origin and rotation error, wall time and peak memory of the method alone).
 //   partloc_bench header         the column names of the rows.
 //   partloc_bench nearest        SampleGrid against KDTreeFlann on the fits' nearest-sample queries.
+//   partloc_bench outliers [CLOUD.ply]
+//                                our statistical outlier filter (core/cloud_stats) against Open3D's, same
+//                                points.
 //   partloc_bench normals        our normals (core/normals) against Open3D's EstimateNormals, same points.
 //   partloc_bench stock [--seed N] [--spacing MM] [--sweep]
 //                                our stock mesh (core/stock) against Open3D's Poisson, same merged points:
@@ -41,6 +44,7 @@ namespace partloc::bench {
 int counts_main(int argc, char** argv);
 int nearest_main(int argc, char** argv);
 int normals_main(int argc, char** argv);
+int outliers_main(int argc, char** argv);
 int stock_main(int argc, char** argv);
 
 namespace {
@@ -201,6 +205,7 @@ int main(int argc, char** argv) {
     const std::string cmd = argv[1];
     if (cmd == "counts") return counts_main(argc - 1, argv + 1);
     if (cmd == "nearest") return nearest_main(argc - 1, argv + 1);
+    if (cmd == "outliers") return outliers_main(argc - 1, argv + 1);
     if (cmd == "normals") return normals_main(argc - 1, argv + 1);
     if (cmd == "stock") return stock_main(argc - 1, argv + 1);
     if (cmd == "compare") return compare_main(argc - 1, argv + 1, "");

@@ -9,6 +9,7 @@
 #include <random>
 #include <thread>
 
+#include "partloc/core/cloud_stats.hpp"
 #include "partloc/core/geometry.hpp"
 #include "partloc/core/icp.hpp"
 #include "partloc/core/radius_grid.hpp"
@@ -260,4 +261,45 @@ TEST(ComposedSurface, AnswersWhatOneGridOverAllTheSamplesAnswers) {
         found_some += na > 0;
     }
     EXPECT_GT(found_some, 3000);
+}
+
+// The merge's statistical outlier filter: the points Open3D's filter keeps, exactly, and the scattered ones
+// gone.
+TEST(StatisticalInliers, KeepWhatOpen3DKeepsAndDropTheScatter) {
+    auto box = open3d::geometry::TriangleMesh::CreateBox(60, 40, 25);
+    const auto samples = sample_mesh(*box, 0.4);
+    std::mt19937_64 rng(11);
+    std::uniform_int_distribution<std::size_t> pick(0, samples->points_.size() - 1);
+    std::normal_distribution<double> g(0.0, 0.13);
+    std::uniform_real_distribution<double> ux(-5, 65), uy(-5, 45), uz(-5, 30);
+    open3d::geometry::PointCloud cloud;
+    for (int i = 0; i < 30000; ++i)
+        cloud.points_.push_back(samples->points_[pick(rng)] + Eigen::Vector3d(g(rng), g(rng), g(rng)));
+    // Scattered returns, each at least 3 mm from the block's surface, after the surface points.
+    const std::size_t first_scattered = cloud.points_.size();
+    while (cloud.points_.size() < first_scattered + 300) {
+        const Eigen::Vector3d p(ux(rng), uy(rng), uz(rng));
+        const Eigen::Vector3d inside =
+            p.cwiseMax(Eigen::Vector3d::Zero()).cwiseMin(Eigen::Vector3d(60, 40, 25));
+        const double to_faces = std::min({p.x(), 60 - p.x(), p.y(), 40 - p.y(), p.z(), 25 - p.z()});
+        const double out = (p - inside).norm();
+        if ((out > 0 ? out : to_faces) >= 3.0) cloud.points_.push_back(p);
+    }
+    // Repeated points (a scanner's duplicates): a distance of zero among the neighbours.
+    for (int i = 0; i < 200; ++i) cloud.points_.push_back(cloud.points_[static_cast<std::size_t>(i) * 7]);
+    for (int k : {1, 8, 20}) {
+        const auto ours = statistical_inliers(cloud.points_, k, 2.5);
+        const auto theirs = std::get<1>(cloud.RemoveStatisticalOutliers(static_cast<std::size_t>(k), 2.5));
+        EXPECT_EQ(ours, theirs) << "k = " << k;
+        if (k < 20) continue;
+        std::size_t scattered_kept = 0;
+        for (std::size_t i : ours) scattered_kept += i >= first_scattered && i < first_scattered + 300;
+        EXPECT_LT(scattered_kept, 15u);  // of 300
+        EXPECT_GT(ours.size(), 29000u);
+    }
+    // Every point at one place: no mean above zero, nothing kept (as Open3D).
+    const std::vector<Eigen::Vector3d> same(50, Eigen::Vector3d(1, 2, 3));
+    EXPECT_TRUE(statistical_inliers(same, 20, 2.5).empty());
+    EXPECT_THROW(statistical_inliers(same, 0, 2.5), std::invalid_argument);
+    EXPECT_THROW(statistical_inliers(same, SampleGrid::kMaxK + 1, 2.5), std::invalid_argument);
 }

@@ -2,14 +2,20 @@
 
 #include <open3d/geometry/BoundingVolume.h>
 #include <open3d/geometry/KDTreeFlann.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 
 #include <Eigen/Eigenvalues>
 #include <algorithm>
-#include <cstdint>
-#include <unordered_map>
 #include <cmath>
+#include <cstdint>
 #include <limits>
+#include <numeric>
 #include <random>
+#include <stdexcept>
+#include <unordered_map>
+
+#include "partloc/core/sample_grid.hpp"
 
 namespace partloc {
 
@@ -119,6 +125,54 @@ Eigen::Vector3d estimate_viewpoint(const open3d::geometry::PointCloud& cloud, do
     for (const auto& nn : sub->normals_) mean += sign * nn;
     if (mean.norm() < 1e-12) return Eigen::Vector3d::Zero();
     return c + mean.normalized() * 20.0 * extent;
+}
+
+}  // namespace partloc
+
+namespace partloc {
+
+std::vector<std::size_t> statistical_inliers(const std::vector<Eigen::Vector3d>& points, int k,
+                                             double std_ratio) {
+    if (k < 1 || k > SampleGrid::kMaxK || !(std_ratio > 0))
+        throw std::invalid_argument("statistical_inliers: k must be 1-24 and std_ratio > 0");
+    std::vector<std::size_t> kept;
+    if (points.empty()) return kept;
+    // The grid's spacing as if the points covered a surface the size of their box: about right for a scan,
+    // and any positive value gives the exact neighbours.
+    Eigen::AlignedBox3d box;
+    for (const auto& p : points) box.extend(p);
+    const double d = box.diagonal().norm();
+    const double spacing =
+        std::max(d / std::sqrt(static_cast<double>(points.size())), 1e-9 * std::max(d, 1.0));
+    // The grid's cells are 1.5 x 1.6 of that spacing: `partloc_bench outliers` took 64-86 ms at 1.6, on its
+    // block and on seed 106's merged points, against 63-170 ms from 1.0 to 1.3 and 106-254 ms from 3 to 6.
+    const SampleGrid grid(points, 1.6 * spacing);
+    std::vector<double> mean(points.size());
+    const double unbounded = std::numeric_limits<double>::infinity();
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, points.size(), 1024), [&](const auto& range) {
+        int idx[SampleGrid::kMaxK];
+        double d2[SampleGrid::kMaxK];
+        for (std::size_t i = range.begin(); i != range.end(); ++i) {
+            const int found = grid.nearest(points[i], k, unbounded, idx, d2);
+            // Summed nearest first, as the KD-tree's sorted answer is: the same bits.
+            double sum = 0.0;
+            for (int j = 0; j < found; ++j) sum += std::sqrt(d2[j]);
+            mean[i] = found > 0 ? sum / found : -1.0;
+        }
+    });
+    // Every point has at least itself as a neighbour, so every mean counts (the library's valid distances).
+    const std::size_t valid = points.size();
+    double cloud_mean = 0.0;
+    for (double m : mean)
+        if (m > 0) cloud_mean += m;
+    cloud_mean /= static_cast<double>(valid);
+    double sq_sum = 0.0;
+    for (double m : mean) sq_sum += m > 0 ? (m - cloud_mean) * (m - cloud_mean) : 0.0;
+    const double std_dev = valid > 1 ? std::sqrt(sq_sum / static_cast<double>(valid - 1)) : 0.0;
+    const double threshold = cloud_mean + std_ratio * std_dev;
+    for (std::size_t i = 0; i < mean.size(); ++i)
+        if (mean[i] > 0 && mean[i] < threshold) kept.push_back(i);
+    return kept;
 }
 
 }  // namespace partloc

@@ -65,7 +65,7 @@ public:
     /// gives exact answers, a good one fast answers).
     SampleGrid(const std::vector<Eigen::Vector3d>& points, double spacing);
 
-    static constexpr int kMaxK = 16;
+    static constexpr int kMaxK = 24;  ///< 20 for the statistical outlier filter (cloud_stats.hpp)
 
     /// The up to k (<= kMaxK) nearest samples within max_distance of p, nearest first: their indices and
     /// squared distances. Returns how many were found.

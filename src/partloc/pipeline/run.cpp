@@ -580,7 +580,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
             }
         }
         if (m->normals_.size() != m->points_.size()) m->normals_.clear();
-        if (m->points_.size() > 30) m = std::get<0>(m->RemoveStatisticalOutliers(20, 2.5));
+        if (m->points_.size() > 30) m = m->SelectByIndex(statistical_inliers(m->points_, 20, 2.5));
         return m;
     };
     auto merged = merge_registered(true);
