@@ -33,7 +33,7 @@ Normal accumulate(const std::vector<Eigen::Vector3d>& source, const Surface& tar
     // Deterministic: the same chunks, summed in the same order, for any number of threads and any
     // scheduling (parallel_reduce's sums differed in their last bits from run to run of the same job, and
     // with them merged.ply and stock.stl; seed 106).
-    return tbb::parallel_deterministic_reduce(
+    Normal sum = tbb::parallel_deterministic_reduce(
         tbb::blocked_range<std::size_t>(0, source.size(), 512), Normal{},
         [&](const tbb::blocked_range<std::size_t>& range, Normal acc) {
             int idx[4];
@@ -72,7 +72,12 @@ Normal accumulate(const std::vector<Eigen::Vector3d>& source, const Surface& tar
                 }
                 Vector6d J;
                 J << p.cross(n), n;
-                acc.A.noalias() += w * J * J.transpose();
+                // The lower triangle of w J J^T only (mirrored once the sums are in), with the products
+                // J_c (w J_r) that the full outer product formed: 21 of 36 products, and the same bits
+                // where the solve reads them (LDLT reads the lower triangle).
+                const Vector6d wJ = w * J;
+                for (int c = 0; c < 6; ++c)
+                    for (int r = c; r < 6; ++r) acc.A(r, c) += J(c) * wJ(r);
                 acc.b.noalias() -= w * r * J;
                 acc.r2 += r * r;
                 ++acc.n;
@@ -80,6 +85,8 @@ Normal accumulate(const std::vector<Eigen::Vector3d>& source, const Surface& tar
             return acc;
         },
         [](const Normal& a, const Normal& b) { return a + b; });
+    sum.A.triangularView<Eigen::StrictlyUpper>() = sum.A.transpose();
+    return sum;
 }
 
 }  // namespace

@@ -5,6 +5,7 @@
 
 #include <Eigen/Eigenvalues>
 #include <algorithm>
+#include <stdexcept>
 #include <utility>
 
 #include "partloc/core/cell_key.hpp"
@@ -28,14 +29,27 @@ Eigen::Vector3d pca_normal(const std::vector<Eigen::Vector3d>& pts, const std::v
     return es.eigenvectors().col(0).normalized();
 }
 
+RadiusGrid normals_grid(const std::vector<Eigen::Vector3d>& points, double radius) {
+    // Cells of half the radius (RadiusGrid skips those wholly outside the ball). Cells of 0.5, 0.75 and 1
+    // radius took the same time within 5 % on seed 106's first scan (`partloc_bench normals`).
+    return radius > 0 ? RadiusGrid(points, 0.5 * radius) : RadiusGrid();
+}
+
 std::vector<Eigen::Vector3d> estimate_normals(const std::vector<Eigen::Vector3d>& points, double radius, int max_nn,
+                                              const std::vector<std::size_t>* at) {
+    if (points.size() < 3 || !(radius > 0) || max_nn < 3)
+        return std::vector<Eigen::Vector3d>(at ? at->size() : points.size(), Eigen::Vector3d::UnitZ());
+    return estimate_normals(points, normals_grid(points, radius), radius, max_nn, at);
+}
+
+std::vector<Eigen::Vector3d> estimate_normals(const std::vector<Eigen::Vector3d>& points,
+                                              const RadiusGrid& grid, double radius, int max_nn,
                                               const std::vector<std::size_t>* at) {
     const std::size_t n = at ? at->size() : points.size();
     std::vector<Eigen::Vector3d> out(n, Eigen::Vector3d::UnitZ());
     if (points.size() < 3 || !(radius > 0) || max_nn < 3) return out;
-    // Cells of half the radius (RadiusGrid skips those wholly outside the ball). Cells of 0.5, 0.75 and 1
-    // radius took the same time within 5 % on seed 106's first scan (`partloc_bench normals`).
-    const RadiusGrid grid(points, 0.5 * radius);
+    if (grid.size() != points.size())
+        throw std::invalid_argument("estimate_normals: the grid is not the points'");
     struct Buffers {
         std::vector<int> idx;
         std::vector<std::pair<double, int>> by_distance;

@@ -22,6 +22,15 @@ namespace partloc {
 std::vector<Eigen::Vector3d> estimate_normals(const std::vector<Eigen::Vector3d>& points, double radius, int max_nn,
                                               const std::vector<std::size_t>* at = nullptr);
 
+class RadiusGrid;
+/// The neighbour grid estimate_normals builds over `points` for `radius`: for a caller that asks for the
+/// normals of the same points more than once.
+RadiusGrid normals_grid(const std::vector<Eigen::Vector3d>& points, double radius);
+/// The same normals, with `grid` = normals_grid(points, radius) built beforehand.
+std::vector<Eigen::Vector3d> estimate_normals(const std::vector<Eigen::Vector3d>& points,
+                                              const RadiusGrid& grid, double radius, int max_nn,
+                                              const std::vector<std::size_t>* at = nullptr);
+
 /// Flips each normal to face `viewpoint` (Open3D's OrientNormalsTowardsCameraLocation): a scanner sees only
 /// surfaces that face it.
 void orient_towards(const std::vector<Eigen::Vector3d>& points, std::vector<Eigen::Vector3d>& normals,

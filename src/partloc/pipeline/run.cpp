@@ -1,11 +1,11 @@
 #include "partloc/pipeline/run.hpp"
 
 #include <open3d/geometry/BoundingVolume.h>
-#include <Eigen/Eigenvalues>
 #include <open3d/geometry/KDTreeSearchParam.h>
 #include <tbb/global_control.h>
 #include <tbb/parallel_for.h>
 
+#include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -17,6 +17,7 @@
 #include "partloc/core/icp.hpp"
 #include "partloc/core/localize.hpp"
 #include "partloc/core/normals.hpp"
+#include "partloc/core/radius_grid.hpp"
 #include "partloc/core/stock.hpp"
 #include "partloc/core/workpiece_fit.hpp"
 #include "partloc/pipeline/uncertainty.hpp"
@@ -74,6 +75,7 @@ struct ScanWork {
     /// (estimate_normals gives unit normals only).
     std::shared_ptr<open3d::geometry::PointCloud> workpiece_points;
     Eigen::Vector3d eye = Eigen::Vector3d::Zero();  ///< the scanner, same frame
+    std::shared_ptr<RadiusGrid> grid;  ///< normals_at's neighbour grid over workpiece_points, once asked
 
     /// Computes the normals of workpiece points `idx` that have none yet; the same normals whenever asked
     /// (from all of the scan's workpiece points around each).
@@ -86,7 +88,11 @@ struct ScanWork {
         if (missing.empty()) return;
         // 2.5 spacings, about twenty points: 3.5 spacings and thirty took a fifth more of the merge's time
         // (seed 106). They tell the faces apart in the part's fit and orient the stock's surface.
-        const auto n = estimate_normals(c.points_, 2.5 * scale.spacing, 20, &missing);
+        // The neighbour grid is built once: the merge, the lone-scan check and the part's last fit ask in
+        // turn.
+        const double radius = 2.5 * scale.spacing;
+        if (!grid) grid = std::make_shared<RadiusGrid>(normals_grid(c.points_, radius));
+        const auto n = estimate_normals(c.points_, *grid, radius, 20, &missing);
         for (std::size_t j = 0; j < missing.size(); ++j)
             c.normals_[missing[j]] = facing(n[j], c.points_[missing[j]], eye);
     }
@@ -566,15 +572,21 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
             if (taken(i)) total += work[i].workpiece_points->points_.size();
         const std::size_t stride = std::max<std::size_t>(1, (total + kMergedPoints - 1) / kMergedPoints);
         std::size_t at = 0;  // index into the concatenation, so that the stride runs on across scans
-        std::vector<std::size_t> keep;
+        std::vector<std::vector<std::size_t>> keep(job.scans.size());
+        for (std::size_t i = 0; i < job.scans.size(); ++i) {
+            if (!taken(i)) continue;
+            const std::size_t n = work[i].workpiece_points->points_.size();
+            for (std::size_t k = 0; k < n; ++k, ++at)
+                if (at % stride == 0) keep[i].push_back(k);
+        }
+        // The scans' normals side by side: each scan's neighbour grid is built by one thread.
+        tbb::parallel_for(std::size_t(0), job.scans.size(), [&](std::size_t i) {
+            if (taken(i)) work[i].normals_at(keep[i]);
+        });
         for (std::size_t i = 0; i < job.scans.size(); ++i) {
             if (!taken(i)) continue;
             const auto& c = *work[i].workpiece_points;
-            keep.clear();
-            for (std::size_t k = 0; k < c.points_.size(); ++k, ++at)
-                if (at % stride == 0) keep.push_back(k);
-            work[i].normals_at(keep);
-            for (std::size_t k : keep) {
+            for (std::size_t k : keep[i]) {
                 m->points_.push_back(c.points_[k]);
                 if (c.HasNormals()) m->normals_.push_back(c.normals_[k]);
             }
@@ -703,8 +715,13 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
                 total += work[i].workpiece_points->points_.size();
         const std::size_t stride = std::max<std::size_t>(1, (total + kReferencePoints - 1) / kReferencePoints);
         std::vector<Eigen::Vector3d> pts, nrm;
-        for (std::size_t i = 0; i < job.scans.size(); ++i) {
-            if (!result.scans[i].registered || !in_fit[i] || !has_points(i)) continue;
+        const auto used = [&](std::size_t i) {
+            return result.scans[i].registered && in_fit[i] && has_points(i);
+        };
+        // Each scan's points near the reference surfaces, with their normals; the scans side by side.
+        std::vector<std::vector<std::size_t>> near_idx(job.scans.size());
+        tbb::parallel_for(std::size_t(0), job.scans.size(), [&](std::size_t i) {
+            if (!used(i)) return;
             const auto& c = *work[i].workpiece_points;
             const std::size_t n = (c.points_.size() + stride - 1) / stride;
             std::vector<char> near(n, 0);
@@ -715,10 +732,14 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
                     near[k] = reference.nearest(q, &d2, 2.0 * fit.distance) >= 0;
                 }
             });
-            std::vector<std::size_t> idx;
             for (std::size_t k = 0; k < n; ++k)
-                if (near[k]) idx.push_back(k * stride);
-            work[i].normals_at(idx);
+                if (near[k]) near_idx[i].push_back(k * stride);
+            work[i].normals_at(near_idx[i]);
+        });
+        for (std::size_t i = 0; i < job.scans.size(); ++i) {
+            if (!used(i)) continue;
+            const auto& c = *work[i].workpiece_points;
+            const auto& idx = near_idx[i];
             auto& o = on_reference[i] = std::make_shared<open3d::geometry::PointCloud>();
             for (std::size_t k : idx) {
                 o->points_.push_back(c.points_[k]);
