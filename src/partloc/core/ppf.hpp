@@ -95,6 +95,10 @@ public:
     };
     /// Entries with this key: [begin, end).
     std::pair<const Entry*, const Entry*> lookup(int key) const;
+    /// Whether key k (0 <= k < table keys, or -1) has entries and no more than max_bucket(): one bit per key,
+    /// a table small enough to stay in the first-level cache. Four of five scene pairs fail it (seed 106),
+    /// and their look-up in the offsets (0.4 MB) missed that cache.
+    bool votes(int k) const { return k >= 0 && (live_[static_cast<std::size_t>(k) >> 6] >> (k & 63) & 1u); }
 
     const std::vector<Eigen::Vector3d>& points() const { return points_; }
     const std::vector<Eigen::Vector3d>& normals() const { return normals_; }
@@ -109,6 +113,7 @@ private:
     std::vector<std::uint32_t> offsets_;  ///< CSR: entries of key k are entries_[offsets_[k], offsets_[k+1])
     std::vector<Entry> entries_;
     std::size_t max_bucket_ = 0;
+    std::vector<std::uint64_t> live_;  ///< votes(k), by bit
 };
 
 struct PoseCandidate {
