@@ -196,7 +196,7 @@ std::vector<std::vector<PoseCandidate>> ppf_detect(const std::vector<const PpfMo
         const PpfSettings& o = m->settings();
         if (o.sampling != s.sampling || o.angle_bins != s.angle_bins || o.alpha_bins != s.alpha_bins ||
             o.coplanar_deg != s.coplanar_deg || o.reference_stride != s.reference_stride ||
-            o.min_references != s.min_references)
+            o.min_references != s.min_references || o.partner_stride != s.partner_stride)
             throw std::invalid_argument("ppf_detect: the models differ in sampling or bins");
     }
     const PpfFeatures features(s);
@@ -210,7 +210,12 @@ std::vector<std::vector<PoseCandidate>> ppf_detect(const std::vector<const PpfMo
     for (const auto& p : scene_points) box.extend(p);
     // Cells of at least the reach; larger when far outliers stretch the box (at most 2 million cells).
     const CellFrame frame(box, std::max(reach, 1e-9), 2.0e6);
-    const CellBuckets cells = bucket_by_cell(frame, scene_points);
+    // The partners: every partner_stride-th point.
+    const std::size_t pstride = static_cast<std::size_t>(std::max(1, s.partner_stride));
+    std::vector<Eigen::Vector3d> partners;
+    partners.reserve(scene_points.size() / pstride + 1);
+    for (std::size_t j = 0; j < scene_points.size(); j += pstride) partners.push_back(scene_points[j]);
+    const CellBuckets cells = bucket_by_cell(frame, partners);
     const double reach2 = reach * reach;
 
     const int nalpha = s.alpha_bins;
@@ -244,7 +249,8 @@ std::vector<std::vector<PoseCandidate>> ppf_detect(const std::vector<const PpfMo
                         const std::size_t ci = frame.index(x, y, z);
                         for (std::uint32_t q = cells.start[ci]; q < cells.start[ci + 1]; ++q) {
                             const std::uint32_t j = cells.order[q];
-                            if ((scene_points[j] - pr).squaredNorm() <= reach2) idx.push_back(j);
+                            if ((partners[j] - pr).squaredNorm() <= reach2)
+                                idx.push_back(static_cast<std::uint32_t>(j * pstride));
                         }
                     }
             for (const std::uint32_t j : idx) {

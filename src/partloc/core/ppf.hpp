@@ -25,6 +25,14 @@ struct PpfSettings {
     /// seeds 2200-2299 (585 with 1000 and neither), but lost a scan of test seed 11 and one
     /// of the paper's test 2 (no fiducial fits); 800 lost one of them.
     int min_references = 1000;
+    /// Every k-th scene point (by index) is a partner of each reference point: the votes are the references
+    /// times their partners, and the voting is a quarter of a job's CPU (seed 106). Every other point with
+    /// 1500 references (0.78 of the votes: 1633 references of seed 106's 14 699 points instead of 1050)
+    /// registered right / wrong (`partloc_trials FIRST 100`, bench/results/trials_partners2_*): seeds
+    /// 2300-2399 603 / 0 against 602 / 0 (with 1000 references 597 / 0), seeds 2200-2299 579 / 0 against
+    /// 586 / 0, 15 more scans rejected as ambiguous over the two; 2.9-3.0 s per job against 3.4 s (the
+    /// trials' own timing, other sessions). Not taken: fewer votes lose scans that every point keeps.
+    int partner_stride = 1;
     double coplanar_deg = 8.0;  ///< a pair whose normals and joining line are within this of coplanar is skipped
     /// Pose clusters returned, most votes first; each is screened by a coarse fit (a third of a scan's time at
     /// 32). Seeds 1500-1519: 32 candidates 108 right, 16 candidates 110 (every 8th point a reference).
