@@ -297,6 +297,10 @@ TEST(StatisticalInliers, KeepWhatOpen3DKeepsAndDropTheScatter) {
         EXPECT_LT(scattered_kept, 15u);  // of 300
         EXPECT_GT(ours.size(), 29000u);
     }
+    // Fewer points than neighbours asked for: each point's mean over all of them, as Open3D's.
+    open3d::geometry::PointCloud few;
+    for (int i = 0; i < 12; ++i) few.points_.push_back(cloud.points_[static_cast<std::size_t>(i) * 1000]);
+    EXPECT_EQ(statistical_inliers(few.points_, 20, 1.0), std::get<1>(few.RemoveStatisticalOutliers(20, 1.0)));
     // Every point at one place: no mean above zero, nothing kept (as Open3D).
     const std::vector<Eigen::Vector3d> same(50, Eigen::Vector3d(1, 2, 3));
     EXPECT_TRUE(statistical_inliers(same, 20, 2.5).empty());

@@ -4,12 +4,14 @@
 #include <open3d/geometry/KDTreeSearchParam.h>
 #include <tbb/global_control.h>
 #include <tbb/parallel_for.h>
+#include <tbb/task_group.h>
 
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <exception>
 #include <optional>
 #include <stdexcept>
 
@@ -772,6 +774,26 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     w.inliers = fit.inliers;
     w.information = fit.JtJ / std::max(wfs.noise * wfs.noise, 1e-30);
     if (!fit.ok) return not_located(fit.reason);
+    // The stock model needs only the merged points: it is built while the datums and the uncertainty are
+    // worked out, each phase's stretches on one core filling the other (seed 106: the stock took 0.10 s of
+    // wall time after them, with 1.4 cores busy). Kept only when the part is located, as before.
+    std::shared_ptr<open3d::geometry::TriangleMesh> stock;
+    std::exception_ptr stock_error;
+    tbb::task_group stock_task;
+    struct WaitFor {
+        tbb::task_group& group;
+        ~WaitFor() { group.wait(); }  // also when leaving early; the task holds its own points
+    } wait_for_stock{stock_task};
+    if (settings.build_stock && spacing > 0)
+        stock_task.run([&stock, &stock_error, points = result.merged, spacing] {
+            try {
+                StockSettings ss;
+                ss.spacing = spacing;
+                stock = build_stock(*points, ss);
+            } catch (...) {
+                stock_error = std::current_exception();
+            }
+        });
     // The datum hierarchy (3-2-1), from the simultaneous fit's pose; or, for a simultaneous fit, each
     // datum's residual there.
     Eigen::Isometry3d T_correction = fit.T_correction;
@@ -863,11 +885,9 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         located->Transform(T_correction.matrix());
         result.final_part_located = located;
     }
-    if (settings.build_stock && spacing > 0) {
-        StockSettings ss;
-        ss.spacing = spacing;
-        result.stock = build_stock(*result.merged, ss);
-    }
+    stock_task.wait();
+    if (stock_error) std::rethrow_exception(stock_error);
+    result.stock = std::move(stock);
     result.seconds = seconds_since(t0);
     return result;
 }
