@@ -40,10 +40,10 @@ namespace partloc {
 /// The points that a statistical outlier filter keeps, ascending: the mean distance from each point to its
 /// k nearest points (itself included) is taken, and a point is kept when that mean is above zero and below
 /// the mean of all of them plus std_ratio standard deviations (with Bessel's correction). The same points as
-/// open3d::geometry::PointCloud::RemoveStatisticalOutliers(k, std_ratio) keeps (tests/test_cloud_stats.cpp);
-/// ours because its KD-tree took 0.17 s wall of seed 106's 2.3 s on the merged workpiece points (about 100
-/// k), where the nearest-sample grid and both cores take a third of that (BENCHMARK.md). k <=
-/// SampleGrid::kMaxK.
+/// open3d::geometry::PointCloud::RemoveStatisticalOutliers(k, std_ratio) keeps (test StatisticalInliers in
+/// tests/test_surface.cpp). Ours because Open3D's KD-tree took 0.17 s of seed 106's 2.3 s on the merged
+/// workpiece points (about 100 k); on the nearest-sample grid and both cores the same points take half to
+/// three fifths of its time (`partloc_bench outliers`, BENCHMARK.md). k <= SampleGrid::kMaxK.
 std::vector<std::size_t> statistical_inliers(const std::vector<Eigen::Vector3d>& points, int k,
                                              double std_ratio);
 
