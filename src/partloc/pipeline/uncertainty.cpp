@@ -1,5 +1,7 @@
 #include "partloc/pipeline/uncertainty.hpp"
 
+#include <tbb/parallel_for.h>
+
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
@@ -115,7 +117,8 @@ void estimate_uncertainty(const Job& job, const UncertaintyInputs& in, Workpiece
     std::vector<Matrix6d> scan_part_jtj(n, Matrix6d::Zero());
     Matrix6d part_jtj = Matrix6d::Zero();
     const Eigen::Isometry3d T_nominal_machine = in.T_correction.inverse();
-    for (int i = 0; i < n && in.reference; ++i) {
+    // The scans side by side, each one's sum in its points' order (the same bits for any number of threads).
+    tbb::parallel_for(0, n, [&](int i) {
         const auto& c = *in.scan_points[i];
         const std::size_t stride = scan_stride(c.points_.size(), in.scan_points_most);
         for (std::size_t k = 0; k < c.points_.size(); k += stride) {
@@ -127,8 +130,8 @@ void estimate_uncertainty(const Job& job, const UncertaintyInputs& in, Workpiece
             J << c.points_[k].cross(nm), nm;
             scan_part_jtj[i] += static_cast<double>(stride) * J * J.transpose();
         }
-        part_jtj += scan_part_jtj[i];
-    }
+    });
+    for (int i = 0; i < n; ++i) part_jtj += scan_part_jtj[i];
     // Each scan's twist per unit of each of its fiducials' twists, at axes 0 (f's share of the scan fit):
     // moves[f] = (scan, matrix), scans ascending.
     std::vector<std::vector<std::pair<int, Matrix6d>>> moves(job.fiducials.size());
