@@ -13,6 +13,7 @@
 #include <numeric>
 #include <random>
 #include <stdexcept>
+#include <string>
 #include <unordered_map>
 
 #include "partloc/core/sample_grid.hpp"
@@ -134,7 +135,8 @@ namespace partloc {
 std::vector<std::size_t> statistical_inliers(const std::vector<Eigen::Vector3d>& points, int k,
                                              double std_ratio) {
     if (k < 1 || k > SampleGrid::kMaxK || !(std_ratio > 0))
-        throw std::invalid_argument("statistical_inliers: k must be 1-24 and std_ratio > 0");
+        throw std::invalid_argument("statistical_inliers: k must be 1-" + std::to_string(SampleGrid::kMaxK) +
+                                    " and std_ratio > 0");
     std::vector<std::size_t> kept;
     if (points.empty()) return kept;
     // The grid's spacing as if the points covered a surface the size of their box: about right for a scan,

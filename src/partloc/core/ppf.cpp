@@ -210,11 +210,14 @@ std::vector<std::vector<PoseCandidate>> ppf_detect(const std::vector<const PpfMo
     for (const auto& p : scene_points) box.extend(p);
     // Cells of at least the reach; larger when far outliers stretch the box (at most 2 million cells).
     const CellFrame frame(box, std::max(reach, 1e-9), 2.0e6);
-    // The partners: every partner_stride-th point.
+    // The partners: every partner_stride-th point (the scene itself at the default stride of 1, uncopied).
     const std::size_t pstride = static_cast<std::size_t>(std::max(1, s.partner_stride));
-    std::vector<Eigen::Vector3d> partners;
-    partners.reserve(scene_points.size() / pstride + 1);
-    for (std::size_t j = 0; j < scene_points.size(); j += pstride) partners.push_back(scene_points[j]);
+    std::vector<Eigen::Vector3d> thinned;
+    if (pstride > 1) {
+        thinned.reserve(scene_points.size() / pstride + 1);
+        for (std::size_t j = 0; j < scene_points.size(); j += pstride) thinned.push_back(scene_points[j]);
+    }
+    const std::vector<Eigen::Vector3d>& partners = pstride > 1 ? thinned : scene_points;
     const CellBuckets cells = bucket_by_cell(frame, partners);
     const double reach2 = reach * reach;
 
