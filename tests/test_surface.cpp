@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <random>
 #include <thread>
 
@@ -306,4 +307,63 @@ TEST(StatisticalInliers, KeepWhatOpen3DKeepsAndDropTheScatter) {
     EXPECT_TRUE(statistical_inliers(same, 20, 2.5).empty());
     EXPECT_THROW(statistical_inliers(same, 0, 2.5), std::invalid_argument);
     EXPECT_THROW(statistical_inliers(same, SampleGrid::kMaxK + 1, 2.5), std::invalid_argument);
+}
+
+// The fits' kept searches (NearestCache) answer exactly what the grid answers, bit for bit, while the points
+// drift as a fit's do (large steps, then ever smaller), through shrinking stage distances, on a plain and a
+// composed surface; and they search the grid for a fraction of the queries only.
+TEST(NearestCache, AnswersExactlyWhatTheSearchAnswersAsThePointsDrift) {
+    open3d::geometry::TriangleMesh box = *open3d::geometry::TriangleMesh::CreateBox(40, 25, 10);
+    open3d::geometry::TriangleMesh cyl = *open3d::geometry::TriangleMesh::CreateCylinder(8, 30, 40, 4);
+    const Surface a = make_surface(sample_mesh(box, 0.5), 0.5);
+    const Surface b = make_surface(sample_mesh(cyl, 0.6), 0.6);
+    std::vector<Eigen::Isometry3d> poses(2, Eigen::Isometry3d::Identity());
+    poses[1].linear() = Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
+    poses[1].translation() = Eigen::Vector3d(30, -10, 4);
+    const Surface composed = compose_surfaces({&a, &b}, poses);
+    for (const Surface* surface : {&a, &composed}) {
+        // Points near the samples (the scan of a surface), and some far off (clutter).
+        std::mt19937_64 rng(11);
+        std::uniform_int_distribution<std::size_t> pick(0, surface->points.size() - 1);
+        std::normal_distribution<double> g(0.0, 0.4);
+        std::uniform_real_distribution<double> u(-60, 60);
+        std::vector<Eigen::Vector3d> pts;
+        for (int i = 0; i < 3000; ++i)
+            pts.push_back(
+                i % 10 ? Eigen::Vector3d(surface->points[pick(rng)] + Eigen::Vector3d(g(rng), g(rng), g(rng)))
+                       : Eigen::Vector3d(u(rng), u(rng), u(rng)));
+        const std::vector<double> stages = {2.0, 1.0, 0.5, 0.3};
+        NearestCache cache(*surface, pts.size(), 1.25 * stages.front());
+        Vector6d step;
+        step << 0.02, -0.01, 0.015, 0.3, -0.2, 0.25;  // about a degree and half a millimetre
+        Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+        std::size_t queries = 0, found_some = 0;
+        for (std::size_t stage = 0; stage < stages.size(); ++stage)
+            for (int it = 0; it < 8; ++it) {
+                T = twist_exp(step) * T;
+                step *= 0.3;                                                             // converging
+                if (stage == 2 && it == 0) T = twist_exp(Vector6d::Constant(0.01)) * T;  // a jump
+                for (std::size_t i = 0; i < pts.size(); ++i) {
+                    const Eigen::Vector3d p = T * pts[i];
+                    const int k = 1 + static_cast<int>((i + it) % 4);
+                    int ia[SampleGrid::kMaxK], ib[SampleGrid::kMaxK];
+                    double da[SampleGrid::kMaxK], db[SampleGrid::kMaxK];
+                    const int na = cache.nearest(i, p, k, stages[stage], ia, da);
+                    const int nb = surface->nearest(p, k, stages[stage], ib, db);
+                    ASSERT_EQ(na, nb) << "point " << i << " stage " << stage << " iteration " << it;
+                    for (int j = 0; j < na; ++j) {
+                        ASSERT_EQ(ia[j], ib[j]) << "point " << i << " stage " << stage << " iteration " << it;
+                        ASSERT_EQ(da[j], db[j]);  // to the bit
+                        EXPECT_EQ(da[j], surface->squared_distance(p, ia[j]));
+                    }
+                    ++queries;
+                    found_some += na > 0;
+                }
+            }
+        EXPECT_GT(found_some, queries / 4);  // the answers are not all empty
+        std::printf("NearestCache: %zu searches for %zu queries\n", cache.searches(), queries);
+        // The first query of each point searches; most later ones need not.
+        EXPECT_GE(cache.searches(), pts.size());
+        EXPECT_LT(cache.searches(), queries / 3);
+    }
 }

@@ -27,9 +27,10 @@ struct Normal {
 };
 
 // One Gauss-Newton system: residual r = (T p - q) . n, Tukey weight with scale c.
-Normal accumulate(const std::vector<Eigen::Vector3d>& source, const Surface& target, const Eigen::Isometry3d& T,
-                  double max_distance, bool weighted, const std::vector<Eigen::Vector3d>* normals, double min_cos,
-                  bool approximate) {
+Normal accumulate(const std::vector<Eigen::Vector3d>& source, const Surface& target,
+                  const Eigen::Isometry3d& T, double max_distance, bool weighted,
+                  const std::vector<Eigen::Vector3d>* normals, double min_cos, bool approximate,
+                  NearestCache& cache) {
     // Deterministic: the same chunks, summed in the same order, for any number of threads and any
     // scheduling (parallel_reduce's sums differed in their last bits from run to run of the same job, and
     // with them merged.ply and stock.stl; seed 106).
@@ -50,7 +51,7 @@ Normal accumulate(const std::vector<Eigen::Vector3d>& source, const Surface& tar
                 // Of the nearest samples, the one whose tangent plane is nearest: at an edge the nearest
                 // sample may lie on the other face, and its plane would pull the fit sideways.
                 const int found =
-                    approximate ? coarse_nearest(p, idx, d2) : target.nearest(p, 4, max_distance, idx, d2);
+                    approximate ? coarse_nearest(p, idx, d2) : cache.nearest(i, p, 4, max_distance, idx, d2);
                 if (found < 1) continue;
                 int k = -1;
                 double r = 0.0;
@@ -100,12 +101,21 @@ IcpResult icp_point_to_plane(const std::vector<Eigen::Vector3d>& source, const S
     Eigen::Isometry3d T = init;
     const double scale = std::max(target.diameter, 1e-9);
     bool all_converged = true;
+    // The exact stages' searches, kept from iteration to iteration (exact; NearestCache), reaching a quarter
+    // past the widest exact stage so that points beyond it are kept too.
+    double reach = settings.max_distances.empty() ? 0.0 : settings.max_distances.back();
+    for (double max_distance : settings.max_distances)
+        if (!(target.coarse && max_distance >= settings.approximate_from &&
+              max_distance <= target.coarse->reach()))
+            reach = std::max(reach, max_distance);
+    NearestCache cache(target, source.size(), 1.25 * reach);
     for (double max_distance : settings.max_distances) {
         const bool approximate = target.coarse && max_distance >= settings.approximate_from &&
                                  max_distance <= target.coarse->reach();
         bool converged = false;
         for (int it = 0; it < settings.max_iterations; ++it) {
-            const Normal sys = accumulate(source, target, T, max_distance, true, source_normals, min_cos, approximate);
+            const Normal sys = accumulate(source, target, T, max_distance, true, source_normals, min_cos,
+                                          approximate, cache);
             ++result.iterations;
             if (sys.n < settings.min_correspondences) {
                 result.T_target_source = T;
@@ -124,7 +134,8 @@ IcpResult icp_point_to_plane(const std::vector<Eigen::Vector3d>& source, const S
         }
         all_converged = all_converged && converged;
     }
-    const Normal last = accumulate(source, target, T, settings.max_distances.back(), false, source_normals, min_cos, false);
+    const Normal last = accumulate(source, target, T, settings.max_distances.back(), false, source_normals,
+                                   min_cos, false, cache);
     result.T_target_source = T;
     result.converged = all_converged;
     result.inliers = last.n;

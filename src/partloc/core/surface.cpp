@@ -45,6 +45,72 @@ int Surface::nearest(const Eigen::Vector3d& p, double* squared_distance, double 
     return idx;
 }
 
+double Surface::squared_distance(const Eigen::Vector3d& p, int index) const {
+    if (parts.empty()) return (points[index] - p).squaredNorm();
+    std::size_t g = parts.size() - 1;
+    while (g > 0 && parts[g].first > index) --g;
+    const Part& part = parts[g];
+    return (part.surface->points[index - part.first] - part.T_part_this * p).squaredNorm();
+}
+
+NearestCache::NearestCache(const Surface& surface, std::size_t points, double reach)
+    : surface_(surface), reach_(reach), entries_(points) {}
+
+int NearestCache::nearest(std::size_t i, const Eigen::Vector3d& p, int k, double max_distance, int* indices,
+                          double* squared_distances) {
+    k = std::min(k, kListed - 1);
+    Entry& e = entries_[i];
+    const double max_d2 = max_distance * max_distance;
+    if (e.listed >= 0 && max_distance <= reach_) {
+        // Every sample not listed lies at least `free` from p.
+        const double free = e.bound - (p - e.at).norm();
+        if (free > 0) {
+            int found = 0;
+            for (int j = 0; j < e.listed; ++j) {
+                const double d2 = surface_.squared_distance(p, e.index[j]);
+                if (d2 > max_d2 || (found == k && d2 >= squared_distances[k - 1])) continue;
+                int at = found < k ? found++ : k - 1;  // into the k best, nearest first (as SampleGrid)
+                while (at > 0 && squared_distances[at - 1] > d2) {
+                    squared_distances[at] = squared_distances[at - 1];
+                    indices[at] = indices[at - 1];
+                    --at;
+                }
+                squared_distances[at] = d2;
+                indices[at] = e.index[j];
+            }
+            // The answer stands when no sample off the list can come nearer than its farthest (or, with
+            // fewer than k, within max_distance): strictly, so that ties are not decided differently.
+            const double last = found == k ? squared_distances[k - 1] : max_d2;
+            if (last < free * free) return found;
+        }
+    }
+    int idx[kListed];
+    double d2[kListed];
+    const double reach = std::max(reach_, max_distance);
+    const int n = surface_.nearest(p, kListed, reach, idx, d2);
+    ++e.searches;
+    if (reach <= reach_) {
+        e.at = p;
+        // With kListed found, the others lie at least as far as the last; with fewer, beyond the reach. Less
+        // a margin far above the rounding of the distances.
+        e.bound = (n == kListed ? std::sqrt(d2[kListed - 1]) : reach) - 1e-9 * reach;
+        e.listed = n;
+        std::copy(idx, idx + n, e.index);
+    }
+    int found = 0;
+    for (int j = 0; j < n && found < k && d2[j] <= max_d2; ++j, ++found) {
+        indices[found] = idx[j];
+        squared_distances[found] = d2[j];
+    }
+    return found;
+}
+
+std::size_t NearestCache::searches() const {
+    std::size_t n = 0;
+    for (const Entry& e : entries_) n += e.searches;
+    return n;
+}
+
 void add_coarse_map(Surface& surface, double cell, double reach) {
     surface.coarse = std::make_shared<const NearestMap>(surface.points, cell, reach);
 }
