@@ -206,8 +206,25 @@ TEST(RadiusGrid, SamePointsAsTheKdTreesRadiusSearch) {
             grid.within(c, r, gi);
             ASSERT_EQ(gi, ti) << "cell " << cell << " query " << q << " radius " << r;
             nonempty += !gi.empty();
+            // Unsorted: the same points.
+            std::vector<int> unsorted;
+            grid.within(c, r, unsorted, false);
+            std::sort(unsorted.begin(), unsorted.end());
+            ASSERT_EQ(unsorted, ti);
         }
         EXPECT_GT(nonempty, 200);
+        // Balls centred outside the grid's box (past the far outliers) that reach into it, or not.
+        for (int q = 0; q < 40; ++q) {
+            const Eigen::Vector3d dir = Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized();
+            const Eigen::Vector3d c = 5000.0 * dir;
+            const double r = q % 4 ? 5000.0 - 60.0 + q : 1000.0;
+            std::vector<int> ti, gi;
+            std::vector<double> td;
+            tree.SearchRadius(c, r, ti, td);
+            std::sort(ti.begin(), ti.end());
+            grid.within(c, r, gi);
+            ASSERT_EQ(gi, ti) << "cell " << cell << " far query " << q;
+        }
     }
     const RadiusGrid empty(std::vector<Eigen::Vector3d>{}, 1.0);
     std::vector<int> none;
