@@ -4,8 +4,8 @@
 //
 // Our own because Open3D's builds a KD-tree over the cloud and keeps each query's neighbours sorted as it
 // finds them (nanoflann's KNN result set): on seed 106 those searches were 16-18 % of a job's CPU (perf), for
-// three uses (the global fit's coarse normals, the fits' points, the workpiece points). Here the points sit in
-// cells of half the radius (RadiusGrid) and only a query with more than max_nn neighbours sorts them, partly.
+// three uses (the global fit's coarse normals, the fits' points, the workpiece points). Here the points sit
+// in cells of the radius (RadiusGrid) and only a query with more than max_nn neighbours sorts them, partly.
 // `partloc_bench normals` measures both on the same points, one thread each (BENCHMARK.md): ours is 3.0
 // times faster on the workpiece's points, 2.6 on the fits', 1.5 on the whole scan thinned to half the global
 // fit's sampling. (Open3D's also runs OpenMP threads inside our TBB tasks.) tests/test_normals.cpp checks

@@ -30,6 +30,19 @@ void RadiusGrid::within(const Eigen::Vector3d& centre, double radius, std::vecto
     const int x0 = std::max(0, static_cast<int>(std::floor(lo.x()))), x1 = std::min(frame_.nx - 1, static_cast<int>(hi.x()));
     const int y0 = std::max(0, static_cast<int>(std::floor(lo.y()))), y1 = std::min(frame_.ny - 1, static_cast<int>(hi.y()));
     const int z0 = std::max(0, static_cast<int>(std::floor(lo.z()))), z1 = std::min(frame_.nz - 1, static_cast<int>(hi.z()));
+    if (x1 - x0 <= 2 && y1 - y0 <= 2 && z1 - z0 <= 2) {
+        // A small ball (the normals' neighbours, a ball of a cell's radius): every point of the rows of its
+        // at most 27 cells is tested, row by row (a row's cells are consecutive in the CSR arrays). The same
+        // points in the same order as the walk below, which spends more on its cells than on their points
+        // here.
+        for (int z = z0; z <= z1; ++z)
+            for (int y = y0; y <= y1; ++y)
+                for (std::uint32_t j = start_[frame_.index(x0, y, z)], e = start_[frame_.index(x1, y, z) + 1];
+                     j < e; ++j)
+                    if ((points_[j] - centre).squaredNorm() < r2) out.push_back(static_cast<int>(index_[j]));
+        if (sorted) std::sort(out.begin(), out.end());
+        return;
+    }
     // Squared distance from the centre to the nearest and the farthest point of a cell's span on one axis.
     auto span = [&](double c, int i, double o, double* near2, double* far2) {
         const double a = o + i * frame_.cell, b = a + frame_.cell;
