@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <random>
 #include <thread>
+#include <utility>
 
 #include "partloc/core/cloud_stats.hpp"
 #include "partloc/core/geometry.hpp"
@@ -59,6 +60,13 @@ void expect_same_as_kdtree(const std::vector<Eigen::Vector3d>& pts, double grid_
     }
     EXPECT_EQ(compared, 4000);
     EXPECT_GT(nonempty, 2000);  // the test queries near and far, not only empty space
+}
+
+// A box and a cylinder sampled as fiducial models are: the parts of the composed-surface tests.
+std::pair<Surface, Surface> box_and_cylinder() {
+    const auto box = open3d::geometry::TriangleMesh::CreateBox(40, 25, 10);
+    const auto cyl = open3d::geometry::TriangleMesh::CreateCylinder(8, 30, 40, 4);
+    return {make_surface(sample_mesh(*box, 0.5), 0.5), make_surface(sample_mesh(*cyl, 0.6), 0.6)};
 }
 
 }  // namespace
@@ -235,10 +243,7 @@ TEST(RadiusGrid, SamePointsAsTheKdTreesRadiusSearch) {
 // A composed surface (the fiducials at their machine poses) answers what one grid over all their samples
 // answers: the same k nearest, in the same order, at the same distances.
 TEST(ComposedSurface, AnswersWhatOneGridOverAllTheSamplesAnswers) {
-    open3d::geometry::TriangleMesh box = *open3d::geometry::TriangleMesh::CreateBox(40, 25, 10);
-    open3d::geometry::TriangleMesh cyl = *open3d::geometry::TriangleMesh::CreateCylinder(8, 30, 40, 4);
-    const Surface a = make_surface(sample_mesh(box, 0.5), 0.5);
-    const Surface b = make_surface(sample_mesh(cyl, 0.6), 0.6);
+    const auto [a, b] = box_and_cylinder();
     std::vector<Eigen::Isometry3d> poses(3, Eigen::Isometry3d::Identity());
     poses[0].translation() = Eigen::Vector3d(-300, 20, 5);
     poses[1].linear() = Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
@@ -330,10 +335,7 @@ TEST(StatisticalInliers, KeepWhatOpen3DKeepsAndDropTheScatter) {
 // drift as a fit's do (large steps, then ever smaller), through shrinking stage distances, on a plain and a
 // composed surface; and they search the grid for a fraction of the queries only.
 TEST(NearestCache, AnswersExactlyWhatTheSearchAnswersAsThePointsDrift) {
-    open3d::geometry::TriangleMesh box = *open3d::geometry::TriangleMesh::CreateBox(40, 25, 10);
-    open3d::geometry::TriangleMesh cyl = *open3d::geometry::TriangleMesh::CreateCylinder(8, 30, 40, 4);
-    const Surface a = make_surface(sample_mesh(box, 0.5), 0.5);
-    const Surface b = make_surface(sample_mesh(cyl, 0.6), 0.6);
+    const auto [a, b] = box_and_cylinder();
     std::vector<Eigen::Isometry3d> poses(2, Eigen::Isometry3d::Identity());
     poses[1].linear() = Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
     poses[1].translation() = Eigen::Vector3d(30, -10, 4);
