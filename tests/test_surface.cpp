@@ -380,6 +380,9 @@ TEST(NearestCache, AnswersExactlyWhatTheSearchAnswersAsThePointsDrift) {
                 }
             }
         EXPECT_GT(found_some, queries / 4);  // the answers are not all empty
+        int none[1];
+        double none_d2[1];
+        EXPECT_EQ(cache.nearest(0, pts[0], 0, 1.0, none, none_d2), 0);  // k = 0: nothing, as Surface::nearest
         std::printf("NearestCache: %zu searches for %zu queries\n", cache.searches(), queries);
         // The first query of each point searches; most later ones need not.
         EXPECT_GE(cache.searches(), pts.size());

@@ -58,6 +58,7 @@ NearestCache::NearestCache(const Surface& surface, std::size_t points, double re
 
 int NearestCache::nearest(std::size_t i, const Eigen::Vector3d& p, int k, double max_distance, int* indices,
                           double* squared_distances) {
+    if (k <= 0) return 0;
     k = std::min(k, kListed - 1);
     Entry& e = entries_[i];
     const double max_d2 = max_distance * max_distance;
