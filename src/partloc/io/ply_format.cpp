@@ -84,6 +84,29 @@ T load(const unsigned char* p, bool swap) {
     return v;
 }
 
+/// A binary value of type t at p, as next() reads it.
+double load_value(PlyType t, const unsigned char* p, bool swap) {
+    switch (t) {
+        case PlyType::Int8:
+            return load<std::int8_t>(p, false);
+        case PlyType::UInt8:
+            return load<std::uint8_t>(p, false);
+        case PlyType::Int16:
+            return load<std::int16_t>(p, swap);
+        case PlyType::UInt16:
+            return load<std::uint16_t>(p, swap);
+        case PlyType::Int32:
+            return load<std::int32_t>(p, swap);
+        case PlyType::UInt32:
+            return load<std::uint32_t>(p, swap);
+        case PlyType::Float32:
+            return load<float>(p, swap);
+        case PlyType::Float64:
+            return load<double>(p, swap);
+    }
+    return 0.0;
+}
+
 /// Reads values of the body one at a time, in either encoding. next() returns false at the end of the data.
 class PlyBody {
   public:
@@ -147,6 +170,14 @@ class PlyBody {
     }
 
     bool binary() const { return encoding_ != PlyEncoding::Ascii; }
+    bool swapped() const { return swap_; }
+    /// The next `count` records of `stride` bytes (binary only), as far as the data holds whole ones: their
+    /// first byte, and how many there are in `complete`; the body moves past them.
+    const unsigned char* take_fixed(std::size_t count, std::size_t stride, std::size_t& complete) {
+        const unsigned char* at = p_;
+        skip_fixed(count, stride, complete);
+        return at;
+    }
 
   private:
     PlyEncoding encoding_;
@@ -277,6 +308,35 @@ RawGeometry parse_ply(std::string_view bytes, const std::string& name) {
         if (fixed && stride > 0) {
             std::size_t complete = 0;
             if (!body.skip_fixed(e.count, stride, complete)) throw truncated(complete);
+            continue;
+        }
+
+        // Binary vertices of fixed size (a scan's usual form): read record by record at the properties'
+        // offsets, without a call per value (six scans of 220 k points took 51 ms to load on 2 threads,
+        // most of it here).
+        bool fixed_vertex = is_vertex && body.binary();
+        for (const auto& p : e.properties) fixed_vertex = fixed_vertex && !p.is_list;
+        if (fixed_vertex && stride > 0) {
+            std::vector<std::size_t> offset(e.properties.size(), 0);
+            for (std::size_t k = 1; k < e.properties.size(); ++k)
+                offset[k] = offset[k - 1] + size_of(e.properties[k - 1].type);
+            std::size_t complete = 0;
+            const unsigned char* at = body.take_fixed(e.count, stride, complete);
+            const bool swap = body.swapped();
+            const auto value = [&](const unsigned char* record, int k) {
+                return load_value(e.properties[k].type, record + offset[k], swap);
+            };
+            g.vertices.resize(complete);
+            if (has_normals) g.normals.resize(complete);
+            for (std::size_t i = 0; i < complete; ++i) {
+                const unsigned char* record = at + i * stride;
+                g.vertices[i] =
+                    Eigen::Vector3d(value(record, xyz[0]), value(record, xyz[1]), value(record, xyz[2]));
+                if (has_normals)
+                    g.normals[i] = Eigen::Vector3d(value(record, nxyz[0]), value(record, nxyz[1]),
+                                                   value(record, nxyz[2]));
+            }
+            if (complete < e.count) throw truncated(complete);
             continue;
         }
 
