@@ -1,5 +1,7 @@
 #include "partloc/io/result_io.hpp"
 
+#include <tbb/parallel_invoke.h>
+
 #include <cmath>
 #include <nlohmann/json.hpp>
 
@@ -212,26 +214,31 @@ std::string result_json(const Job& job, const JobResult& result) {
 std::vector<fs::path> write_outputs(const fs::path& out_dir, const Job& job, const JobResult& result,
                                     const std::string& job_name) {
     fs::create_directories(out_dir);
-    std::vector<fs::path> written;
     const std::string units = "units " + job.units;
-
-    const auto model = [&](const char* file, const auto& geometry, auto write) {
-        const fs::path path = out_dir / file;
+    // The files side by side (seed 106: the three models 12-13 ms, the report 8-9 ms, one after another),
+    // result.json last, once the others are written; `written` in this order whatever finishes first.
+    const fs::path files[] = {out_dir / "merged.ply", out_dir / "stock.stl",
+                              out_dir / "final_part_located.stl", out_dir / "report.html"};
+    bool made[4] = {false, false, false, true};
+    const auto model = [&](int k, const auto& geometry, auto write) {
         if (geometry) {
-            write(path, *geometry, units);
-            written.push_back(path);
+            write(files[k], *geometry, units);
+            made[k] = true;
         } else {
-            remove_stale(path);
+            remove_stale(files[k]);
         }
     };
-    model("merged.ply", result.merged, write_point_cloud);
-    model("stock.stl", result.stock, write_mesh);
-    model("final_part_located.stl", result.final_part_located, write_mesh);
-
-    ReportOptions options;
-    options.job_name = job_name;
-    write_text_atomically(out_dir / "report.html", render_report_html(job, result, options));
-    written.push_back(out_dir / "report.html");
+    tbb::parallel_invoke([&] { model(0, result.merged, write_point_cloud); },
+                         [&] { model(1, result.stock, write_mesh); },
+                         [&] { model(2, result.final_part_located, write_mesh); },
+                         [&] {
+                             ReportOptions options;
+                             options.job_name = job_name;
+                             write_text_atomically(files[3], render_report_html(job, result, options));
+                         });
+    std::vector<fs::path> written;
+    for (int k = 0; k < 4; ++k)
+        if (made[k]) written.push_back(files[k]);
 
     write_text_atomically(out_dir / "result.json", result_json(job, result));
     written.push_back(out_dir / "result.json");
