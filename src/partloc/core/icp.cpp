@@ -101,17 +101,18 @@ IcpResult icp_point_to_plane(const std::vector<Eigen::Vector3d>& source, const S
     Eigen::Isometry3d T = init;
     const double scale = std::max(target.diameter, 1e-9);
     bool all_converged = true;
+    const auto approximate_at = [&](double max_distance) {
+        return target.coarse && max_distance >= settings.approximate_from &&
+               max_distance <= target.coarse->reach();
+    };
     // The exact stages' searches, kept from iteration to iteration (exact; NearestCache), reaching a quarter
     // past the widest exact stage so that points beyond it are kept too.
     double reach = settings.max_distances.empty() ? 0.0 : settings.max_distances.back();
     for (double max_distance : settings.max_distances)
-        if (!(target.coarse && max_distance >= settings.approximate_from &&
-              max_distance <= target.coarse->reach()))
-            reach = std::max(reach, max_distance);
+        if (!approximate_at(max_distance)) reach = std::max(reach, max_distance);
     NearestCache cache(target, source.size(), 1.25 * reach);
     for (double max_distance : settings.max_distances) {
-        const bool approximate = target.coarse && max_distance >= settings.approximate_from &&
-                                 max_distance <= target.coarse->reach();
+        const bool approximate = approximate_at(max_distance);
         bool converged = false;
         for (int it = 0; it < settings.max_iterations; ++it) {
             const Normal sys = accumulate(source, target, T, max_distance, true, source_normals, min_cos,
