@@ -101,15 +101,8 @@ int SampleGrid::nearest(const Eigen::Vector3d& p, int k, double max_distance, in
     auto consider = [&](std::uint32_t a, std::uint32_t b) {
         for (std::uint32_t j = a; j < b; ++j) {
             const double d2 = (points_[j] - p).squaredNorm();
-            if (d2 > max_d2 || (found == k && d2 >= squared_distances[k - 1])) continue;
-            int at = found < k ? found++ : k - 1;
-            while (at > 0 && squared_distances[at - 1] > d2) {
-                squared_distances[at] = squared_distances[at - 1];
-                indices[at] = indices[at - 1];
-                --at;
-            }
-            squared_distances[at] = d2;
-            indices[at] = static_cast<int>(index_[j]);
+            if (d2 <= max_d2)
+                keep_nearest(static_cast<int>(index_[j]), d2, k, found, indices, squared_distances);
         }
     };
     auto visit = [&](int x, int y, int z) {

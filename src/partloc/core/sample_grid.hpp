@@ -58,6 +58,22 @@ struct CellBuckets {
 };
 CellBuckets bucket_by_cell(const CellFrame& frame, const std::vector<Eigen::Vector3d>& points);
 
+/// Offers a sample at squared distance d2 to the k nearest found so far (`found` of them in indices and
+/// squared_distances, nearest first; among equal distances the one offered first stays first). Returns
+/// whether it was taken: the searches here (SampleGrid, Surface, NearestCache) all keep their answers so.
+inline bool keep_nearest(int index, double d2, int k, int& found, int* indices, double* squared_distances) {
+    if (found == k && d2 >= squared_distances[k - 1]) return false;
+    int at = found < k ? found++ : k - 1;
+    while (at > 0 && squared_distances[at - 1] > d2) {
+        squared_distances[at] = squared_distances[at - 1];
+        indices[at] = indices[at - 1];
+        --at;
+    }
+    squared_distances[at] = d2;
+    indices[at] = index;
+    return true;
+}
+
 class SampleGrid {
 public:
     SampleGrid() = default;

@@ -21,18 +21,9 @@ int Surface::nearest(const Eigen::Vector3d& p, int k, double max_distance, int* 
     for (const Part& part : parts) {
         // A part far from p answers from its grid's distance transform in one lookup.
         const int n = part.surface->grid.nearest(part.T_part_this * p, k, max_distance, idx, d2);
-        for (int j = 0; j < n; ++j) {
-            // Into the k best so far, nearest first (a part's answers are sorted, so most stop at once).
-            if (found == k && d2[j] >= squared_distances[k - 1]) break;
-            int at = found < k ? found++ : k - 1;
-            while (at > 0 && squared_distances[at - 1] > d2[j]) {
-                squared_distances[at] = squared_distances[at - 1];
-                indices[at] = indices[at - 1];
-                --at;
-            }
-            squared_distances[at] = d2[j];
-            indices[at] = part.first + idx[j];
-        }
+        // Into the k best so far (a part's answers are sorted, so most stop at once).
+        for (int j = 0; j < n; ++j)
+            if (!keep_nearest(part.first + idx[j], d2[j], k, found, indices, squared_distances)) break;
     }
     return found;
 }
@@ -69,15 +60,7 @@ int NearestCache::nearest(std::size_t i, const Eigen::Vector3d& p, int k, double
             int found = 0;
             for (int j = 0; j < e.listed; ++j) {
                 const double d2 = surface_.squared_distance(p, e.index[j]);
-                if (d2 > max_d2 || (found == k && d2 >= squared_distances[k - 1])) continue;
-                int at = found < k ? found++ : k - 1;  // into the k best, nearest first (as SampleGrid)
-                while (at > 0 && squared_distances[at - 1] > d2) {
-                    squared_distances[at] = squared_distances[at - 1];
-                    indices[at] = indices[at - 1];
-                    --at;
-                }
-                squared_distances[at] = d2;
-                indices[at] = e.index[j];
+                if (d2 <= max_d2) keep_nearest(e.index[j], d2, k, found, indices, squared_distances);
             }
             // The answer stands when no sample off the list can come nearer than its farthest (or, with
             // fewer than k, within max_distance): strictly, so that ties are not decided differently.
