@@ -6,6 +6,8 @@
 //   partloc_bench compare --method partloc|open3d|paper --seed N [--spacing MM] [--noise MM]
 //                         [--positions P] [--per-position K] [--stock] [--isolate] [--header]
 //       --stock: partloc also builds the stock model (off: like for like with the baselines, which do not);
+//       --cache DIR: partloc keeps its prepared fiducial models in DIR (io/model_cache.hpp); a second run
+//       with the same DIR reads them instead of preparing them (a note says which);
 //       --isolate: each scan cut down to the fiducial it sees best (a check that a method works without
 //       clutter; the workpiece is cut away too).
 //       one method on one generated cell, in this process: one table row (scans right / wrong / rejected,
@@ -31,12 +33,14 @@
 #include <cstdlib>
 #include <cstring>
 #include <exception>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "common.hpp"
 #include "open3d_baseline.hpp"
 #include "paper_baseline.hpp"
+#include "partloc/io/model_cache.hpp"
 #include "partloc/pipeline/run.hpp"
 
 namespace partloc::bench {
@@ -55,15 +59,21 @@ int usage() {
         "usage: partloc_bench counts [first_seed] [cells]\n"
         "       partloc_bench compare --method partloc|open3d|paper --seed N [--spacing MM] [--noise MM]\n"
         "                             [--positions P] [--per-position K] [--stock] [--isolate] [--header]\n"
+        "                             [--cache DIR]  (partloc: prepared models kept in DIR between runs)\n"
         "       partloc_bench scaling (as compare, method partloc)\n");
     return 2;
 }
 
-MethodOutcome run_partloc(const Job& job, std::uint64_t seed, bool stock, std::vector<std::string>& notes) {
+MethodOutcome run_partloc(const Job& job, std::uint64_t seed, bool stock, io::ModelCache* cache,
+                          std::vector<std::string>& notes) {
     RunSettings rs;
     rs.seed = seed;
     rs.build_stock = stock;
+    rs.models = cache;
     const JobResult r = run_job(job, rs);
+    if (cache)
+        notes.push_back("model cache " + cache->dir().string() + ": " + std::to_string(cache->hits()) +
+                        " read, " + std::to_string(cache->misses()) + " prepared");
     MethodOutcome out;
     for (std::size_t i = 0; i < r.scans.size(); ++i)
         if (!r.scans[i].registered)
@@ -108,6 +118,7 @@ void print_header() {
 int compare_main(int argc, char** argv, std::string method) {
     CellSpec spec;
     bool header = false, stock = false, isolate = false;
+    std::string cache_dir;
     for (int i = 1; i < argc; ++i) {
         const std::string a = argv[i];
         const bool has_value = i + 1 < argc;
@@ -125,6 +136,8 @@ int compare_main(int argc, char** argv, std::string method) {
             spec.per_position = std::atoi(argv[++i]);
         else if (a == "--stock")
             stock = true;
+        else if (a == "--cache" && has_value)
+            cache_dir = argv[++i];
         else if (a == "--isolate")
             isolate = true;
         else if (a == "--header")
@@ -161,13 +174,15 @@ int compare_main(int argc, char** argv, std::string method) {
     for (const auto& s : cell.job.scans) points += s.points->points_.size();
 
     if (isolate) isolate_fiducials(cell);
+    std::optional<io::ModelCache> cache;
+    if (!cache_dir.empty()) cache.emplace(cache_dir);
     const double input_mib = current_memory_mib();
     reset_peak_memory();
     const auto t0 = std::chrono::steady_clock::now();
     MethodOutcome out;
     std::vector<std::string> notes;
     if (method == "partloc")
-        out = run_partloc(cell.job, spec.seed, stock, notes);
+        out = run_partloc(cell.job, spec.seed, stock, cache ? &*cache : nullptr, notes);
     else if (method == "open3d") {
         Open3DSettings o;
         o.seed = spec.seed;

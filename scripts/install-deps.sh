@@ -3,7 +3,7 @@
 set -euo pipefail
 pkgs=(cmake g++ make pkg-config
       libopen3d-dev libembree-dev libeigen3-dev libyaml-cpp-dev nlohmann-json3-dev libcli11-dev
-      libtbb-dev libgtest-dev libgmock-dev libbenchmark-dev)
+      libtbb-dev libssl-dev libgtest-dev libgmock-dev libbenchmark-dev)
 [[ "${PARTLOC_WITH_PCL:-0}" == 1 ]] && pkgs+=(libpcl-dev)
 missing=()
 for p in "${pkgs[@]}"; do

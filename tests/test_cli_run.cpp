@@ -73,10 +73,12 @@ class CliRun : public ::testing::Test {
                scan_entry + "\n";
     }
 
-    Outcome run(const fs::path& job_file, const fs::path& out) const {
+    /// The model cache in this test's folder (PARTLOC_CACHE), unless `options` name another.
+    Outcome run(const fs::path& job_file, const fs::path& out, const std::string& options = "") const {
         const fs::path out_txt = dir_ / "stdout.txt", err_txt = dir_ / "stderr.txt";
-        const std::string cmd = std::string("'") + PARTLOC_EXE + "' run '" + job_file.string() + "' --out '" +
-                                out.string() + "' --threads 2 > '" + out_txt.string() + "' 2> '" +
+        const std::string cmd = "PARTLOC_CACHE='" + (dir_ / "cache").string() + "' '" + PARTLOC_EXE +
+                                "' run '" + job_file.string() + "' --out '" + out.string() +
+                                "' --threads 2 " + options + " > '" + out_txt.string() + "' 2> '" +
                                 err_txt.string() + "'";
         const int status = std::system(cmd.c_str());
         Outcome r;
@@ -165,4 +167,72 @@ TEST_F(CliRun, GoodJobWritesResultThatAgreesWithTheExitCode) {
     for (const auto& e : fs::directory_iterator(dir_ / "out"))
         EXPECT_NE(e.path().filename().string().rfind(".tmp", 0), 0u) << "temporary file left: " << e.path();
     EXPECT_NE(r.out.find("workpiece:"), std::string::npos) << r.out;
+}
+
+namespace {
+/// result.json without its run times.
+std::string without_seconds(const std::string& json) {
+    std::istringstream in(json);
+    std::string out, line;
+    while (std::getline(in, line))
+        if (line.find("\"seconds\"") == std::string::npos) out += line + "\n";
+    return out;
+}
+std::size_t model_files(const fs::path& dir) {
+    std::size_t n = 0;
+    std::error_code ec;
+    for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec))
+        n += it->path().extension() == ".model";
+    return n;
+}
+}  // namespace
+
+// The fiducials' prepared models are kept between runs (io/model_cache.hpp): by default in $PARTLOC_CACHE,
+// or in --cache DIR; --no-cache keeps nothing. A damaged cache file or a cache folder that cannot be
+// written is said on stderr, and the result is the same.
+TEST_F(CliRun, ModelCacheKeepsTheResultAndSaysWhatItCouldNotDo) {
+    spit(dir_ / "job.yaml", job());
+    const Outcome first = run(dir_ / "job.yaml", dir_ / "out1");
+    ASSERT_TRUE(first.code == 0 || first.code == 3) << first.err;
+    EXPECT_EQ(first.err, "");
+    ASSERT_EQ(model_files(dir_ / "cache"), 1u);
+    const std::string want = without_seconds(slurp(dir_ / "out1/result.json"));
+
+    const Outcome second = run(dir_ / "job.yaml", dir_ / "out2");  // from the cache
+    EXPECT_EQ(second.code, first.code);
+    EXPECT_EQ(second.err, "");
+    EXPECT_EQ(without_seconds(slurp(dir_ / "out2/result.json")), want);
+
+    for (const auto& e : fs::directory_iterator(dir_ / "cache")) {
+        std::string bytes = slurp(e.path());
+        bytes[bytes.size() - 9] ^= 1;
+        spit(e.path(), bytes);
+    }
+    const Outcome damaged = run(dir_ / "job.yaml", dir_ / "out3");
+    EXPECT_EQ(damaged.code, first.code);
+    EXPECT_NE(damaged.err.find("partloc: model cache: "), std::string::npos) << damaged.err;
+    EXPECT_NE(damaged.err.find("checksum"), std::string::npos) << damaged.err;
+    EXPECT_EQ(without_seconds(slurp(dir_ / "out3/result.json")), want);
+
+    spit(dir_ / "a_file", "x");
+    const Outcome unwritable =
+        run(dir_ / "job.yaml", dir_ / "out4", "--cache '" + (dir_ / "a_file").string() + "'");
+    EXPECT_EQ(unwritable.code, first.code);
+    EXPECT_NE(unwritable.err.find("cannot keep box in the model cache"), std::string::npos) << unwritable.err;
+    EXPECT_EQ(without_seconds(slurp(dir_ / "out4/result.json")), want);
+
+    const Outcome named =
+        run(dir_ / "job.yaml", dir_ / "out5", "--cache '" + (dir_ / "named").string() + "'");
+    EXPECT_EQ(named.err, "");
+    EXPECT_EQ(model_files(dir_ / "named"), 1u);
+    EXPECT_EQ(without_seconds(slurp(dir_ / "out5/result.json")), want);
+
+    fs::remove_all(dir_ / "cache");
+    const Outcome none = run(dir_ / "job.yaml", dir_ / "out6", "--no-cache");
+    EXPECT_EQ(none.err, "");
+    EXPECT_FALSE(fs::exists(dir_ / "cache"));
+    EXPECT_EQ(without_seconds(slurp(dir_ / "out6/result.json")), want);
+
+    const Outcome both = run(dir_ / "job.yaml", dir_ / "out7", "--no-cache --cache '" + dir_.string() + "'");
+    EXPECT_EQ(both.code, 2) << "--cache and --no-cache together";
 }

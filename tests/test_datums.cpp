@@ -543,7 +543,8 @@ TEST(DatumJob, RunLocatesByTheDatumsAndReportsEach) {
     sj.job.workpiece.fit = WorkpieceFitMode::Datums;
     io::write_job(f.dir, sj.job);
     const std::string cmd = std::string(PARTLOC_EXE) + " run " + (f.dir / "job.yaml").string() + " --out " +
-                            (f.dir / "out").string() + " > /dev/null 2> " + (f.dir / "stderr.txt").string();
+                            (f.dir / "out").string() + " --cache " + (f.dir / "cache").string() +
+                            " > /dev/null 2> " + (f.dir / "stderr.txt").string();
     ASSERT_EQ(std::system(cmd.c_str()), 0);
     std::ifstream in(f.dir / "out" / "result.json");
     const auto j = nlohmann::json::parse(in);

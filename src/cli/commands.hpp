@@ -5,8 +5,10 @@
 
 namespace partloc::cli {
 
-/// `partloc run JOB --out DIR`: 0 located, 2 bad input, 3 not located.
-int command_run(const std::string& job_file, const std::string& out_dir, int threads, std::uint64_t seed);
+/// `partloc run JOB --out DIR`: 0 located, 2 bad input, 3 not located. With `cache`, the prepared fiducial
+/// models are kept in `cache_dir` (io::ModelCache::default_dir() when empty) between jobs.
+int command_run(const std::string& job_file, const std::string& out_dir, int threads, std::uint64_t seed,
+                const std::string& cache_dir, bool cache);
 
 /// `partloc demo [--out DIR]`: the paper's experiment re-created in the virtual cell; prints the table of
 /// true vs located poses. Writes each test's job and results under DIR when given.

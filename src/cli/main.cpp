@@ -8,7 +8,8 @@ int main(int argc, char** argv) {
     CLI::App app{"partloc: locate a workpiece in a CNC machine from 3D scans and fiducials"};
     app.require_subcommand(1);
 
-    std::string job_file, out_dir, demo_out, sim_out;
+    std::string job_file, out_dir, demo_out, sim_out, cache_dir;
+    bool no_cache = false;
     int threads = 0;
     std::uint64_t seed = 1, demo_seed = 1, sim_seed = 1;
 
@@ -17,6 +18,11 @@ int main(int argc, char** argv) {
     run->add_option("--out", out_dir, "output folder")->required();
     run->add_option("--threads", threads, "worker threads (0: all cores)");
     run->add_option("--seed", seed, "seed for every random choice");
+    auto* cache = run->add_option("--cache", cache_dir,
+                                  "keep prepared fiducial models in this folder between jobs (default: "
+                                  "$PARTLOC_CACHE, else $XDG_CACHE_HOME/partloc, else ~/.cache/partloc)");
+    run->add_flag("--no-cache", no_cache, "prepare the fiducial models afresh; keep nothing")
+        ->excludes(cache);
 
     auto* demo = app.add_subcommand("demo", "the paper's experiment re-created in a virtual cell");
     demo->add_option("--out", demo_out, "write each test's job and results here");
@@ -33,7 +39,9 @@ int main(int argc, char** argv) {
         const int code = app.exit(e);
         return code == 0 ? 0 : 2;
     }
-    if (*run) return partloc::cli::command_run(job_file, out_dir, threads, seed);
+    if (*run)
+        return partloc::cli::command_run(job_file, out_dir, threads, seed, no_cache ? "" : cache_dir,
+                                         !no_cache);
     if (*demo) return partloc::cli::command_demo(demo_out, demo_seed, threads);
     if (*simulate) return partloc::cli::command_simulate(sim_out, sim_seed);
     return 2;

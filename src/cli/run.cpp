@@ -5,11 +5,13 @@
 
 #include <cstdio>
 #include <iostream>
+#include <optional>
 #include <sstream>
 
 #include "commands.hpp"
 #include "partloc/core/geometry.hpp"
 #include "partloc/io/job_io.hpp"
+#include "partloc/io/model_cache.hpp"
 #include "partloc/io/result_io.hpp"
 
 namespace partloc::cli {
@@ -73,7 +75,8 @@ void print_summary(std::ostream& out, const std::string& job_file, const Job& jo
 
 }  // namespace
 
-int command_run(const std::string& job_file, const std::string& out_dir, int threads, std::uint64_t seed) {
+int command_run(const std::string& job_file, const std::string& out_dir, int threads, std::uint64_t seed,
+                const std::string& cache_dir, bool cache) {
     open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
 
     Job job;
@@ -92,11 +95,20 @@ int command_run(const std::string& job_file, const std::string& out_dir, int thr
             return complain(out_dir + ": --out names a file, not a folder", kBadInput);
     }
 
+    // The fiducials' prepared models, kept between jobs (io/model_cache.hpp); without a folder to keep them
+    // in, each job prepares its own.
+    std::optional<io::ModelCache> models;
+    if (cache) {
+        const std::filesystem::path dir =
+            cache_dir.empty() ? io::ModelCache::default_dir() : std::filesystem::path(cache_dir);
+        if (!dir.empty()) models.emplace(dir);
+    }
     JobResult result;
     try {
         RunSettings settings;
         settings.threads = threads;
         settings.seed = seed;
+        settings.models = models ? &*models : nullptr;
         result = run_job(job, settings);
     } catch (const std::invalid_argument& e) {
         return complain(job_file + ": " + e.what(), kBadInput);
@@ -111,6 +123,9 @@ int command_run(const std::string& job_file, const std::string& out_dir, int thr
         return complain(std::string("cannot write the output: ") + e.what(), kFailed);
     }
 
+    // The cache never changes the result; what it could not do is said, and the job goes on without it.
+    if (models)
+        for (const auto& p : models->problems()) std::cerr << "partloc: model cache: " << p << std::endl;
     print_summary(std::cout, job_file, job, result);
     std::cout << "wrote";
     for (const auto& p : written) std::cout << " " << p.string();

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 #include <stdexcept>
+#include <utility>
 
 namespace partloc {
 
@@ -59,6 +60,19 @@ NearestMap::NearestMap(const std::vector<Eigen::Vector3d>& points, double cell, 
         }
         front.swap(next);
     }
+}
+
+NearestMap::NearestMap(const CellFrame& frame, double reach, std::vector<std::int32_t> cells,
+                       std::size_t samples)
+    : frame_(frame), reach_(reach), nearest_(std::move(cells)) {
+    if (nearest_.empty()) return;  // a map of no samples
+    if (!(frame_.cell > 0) || !(reach_ >= 0) || frame_.nx <= 0 || frame_.ny <= 0 || frame_.nz <= 0 ||
+        nearest_.size() != frame_.count() || !std::isfinite(frame_.origin.sum()) ||
+        std::abs(frame_.inv_cell * frame_.cell - 1.0) > 1e-12)
+        throw std::invalid_argument("NearestMap: the cells do not fit the frame");
+    for (const std::int32_t i : nearest_)
+        if (i < -1 || (i >= 0 && static_cast<std::size_t>(i) >= samples))
+            throw std::invalid_argument("NearestMap: a cell names a sample that is not there");
 }
 
 int NearestMap::nearest(const Eigen::Vector3d& p) const {

@@ -25,6 +25,10 @@ public:
     /// Cells of size `cell` over the samples' bounding box grown by `reach`; a cell whose centre has no
     /// sample within `reach` answers -1. The cell grows if the box would need more than 16 million cells.
     NearestMap(const std::vector<Eigen::Vector3d>& points, double cell, double reach);
+    /// A map as built before (frame(), reach(), cells() of one built from `samples` points), e.g. read back
+    /// from the model cache. Throws std::invalid_argument when the parts do not fit together: the cell
+    /// count is not the frame's, or a cell names a sample outside [0, samples).
+    NearestMap(const CellFrame& frame, double reach, std::vector<std::int32_t> cells, std::size_t samples);
 
     /// A sample near the centre of p's cell (at most a fraction of a cell farther from it than the nearest
     /// sample), or -1. Thread-safe (read only).
@@ -32,8 +36,11 @@ public:
 
     double cell_size() const { return frame_.cell; }
     double reach() const { return reach_; }
+    const CellFrame& frame() const { return frame_; }
+    /// Each cell's sample, -1 for none (the frame's cell order).
+    const std::vector<std::int32_t>& cells() const { return nearest_; }
 
-private:
+  private:
     CellFrame frame_;
     double reach_ = 0.0;
     std::vector<std::int32_t> nearest_;  // per cell; -1: none within reach

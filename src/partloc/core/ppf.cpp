@@ -6,6 +6,7 @@
 #include <cmath>
 #include <numeric>
 #include <stdexcept>
+#include <utility>
 
 #include "partloc/core/geometry.hpp"
 #include "partloc/core/sample_grid.hpp"
@@ -117,11 +118,7 @@ PpfModel::PpfModel(const std::vector<Eigen::Vector3d>& points, const std::vector
     : settings_(settings), features_(settings), points_(points), normals_(normals) {
     if (points.size() != normals.size() || points.empty())
         throw std::invalid_argument("PPF model needs points with normals");
-    Eigen::AlignedBox3d box;
-    for (const auto& p : points_) box.extend(p);
-    diameter_ = box.diagonal().norm();
-    center_ = box.center();
-    distance_bins_ = static_cast<int>(std::ceil(diameter_ / settings_.sampling)) + 2;
+    set_extent();
     const int nkeys = distance_bins_ * settings_.angle_bins * settings_.angle_bins * settings_.angle_bins;
 
     // Two passes (count, fill) into CSR arrays: compact and cache friendly.
@@ -161,6 +158,43 @@ PpfModel::PpfModel(const std::vector<Eigen::Vector3d>& points, const std::vector
             if (k < 0 || !votes(k)) continue;
             entries_[fill[k]++] = {static_cast<std::uint32_t>(i), pair_turn(T_g[i], points_[j])};
         }
+}
+
+PpfModel::PpfModel(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& normals,
+                   const PpfSettings& settings, std::vector<std::uint32_t> offsets,
+                   std::vector<Entry> entries, std::size_t max_bucket)
+    : settings_(settings),
+      features_(settings),
+      points_(points),
+      normals_(normals),
+      offsets_(std::move(offsets)),
+      entries_(std::move(entries)),
+      max_bucket_(max_bucket) {
+    if (points.size() != normals.size() || points.empty())
+        throw std::invalid_argument("PPF model needs points with normals");
+    set_extent();
+    const std::size_t nkeys = static_cast<std::size_t>(distance_bins_) * settings_.angle_bins *
+                              settings_.angle_bins * settings_.angle_bins;
+    if (offsets_.size() != nkeys + 1 || offsets_.front() != 0 || offsets_.back() != entries_.size())
+        throw std::invalid_argument("PPF model: the table does not fit the points");
+    live_.assign(nkeys / 64 + 1, 0);
+    for (std::size_t k = 0; k < nkeys; ++k) {
+        if (offsets_[k + 1] < offsets_[k])
+            throw std::invalid_argument("PPF model: the table's offsets decrease");
+        // Built tables hold only the keys that vote (the constructor above).
+        if (offsets_[k + 1] > offsets_[k]) live_[k >> 6] |= std::uint64_t(1) << (k & 63);
+    }
+    for (const Entry& e : entries_)
+        if (e.model_index >= points_.size())
+            throw std::invalid_argument("PPF model: an entry names no point");
+}
+
+void PpfModel::set_extent() {
+    Eigen::AlignedBox3d box;
+    for (const auto& p : points_) box.extend(p);
+    diameter_ = box.diagonal().norm();
+    center_ = box.center();
+    distance_bins_ = static_cast<int>(std::ceil(diameter_ / settings_.sampling)) + 2;
 }
 
 int PpfModel::key(const Eigen::Vector3d& p1, const Eigen::Vector3d& n1, const Eigen::Vector3d& p2,

@@ -79,6 +79,19 @@ public:
     PpfModel(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& normals,
              const PpfSettings& settings);
 
+    struct Entry {
+        std::uint32_t model_index;
+        /// Angle of the pair about the first normal as a fraction of a turn, fixed point (2^32 = one turn):
+        /// the difference of two such angles wraps around by itself in unsigned arithmetic.
+        std::uint32_t turn;
+    };
+    /// A table as built before from these points and settings (offsets(), entries() and max_bucket() of
+    /// it), e.g. read back from the model cache. Throws std::invalid_argument when the parts do not fit
+    /// together (the offsets' count or order, an entry's point).
+    PpfModel(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& normals,
+             const PpfSettings& settings, std::vector<std::uint32_t> offsets, std::vector<Entry> entries,
+             std::size_t max_bucket);
+
     const PpfSettings& settings() const { return settings_; }
     double diameter() const { return diameter_; }
     const Eigen::Vector3d& center() const { return center_; }
@@ -95,12 +108,6 @@ public:
         return distance_bin * A * A * A + angle_key;
     }
 
-    struct Entry {
-        std::uint32_t model_index;
-        /// Angle of the pair about the first normal as a fraction of a turn, fixed point (2^32 = one turn):
-        /// the difference of two such angles wraps around by itself in unsigned arithmetic.
-        std::uint32_t turn;
-    };
     /// Entries with this key: [begin, end).
     std::pair<const Entry*, const Entry*> lookup(int key) const;
     /// Whether key k (0 <= k < table keys, or -1) has entries and no more than max_bucket(): one bit per key
@@ -110,8 +117,12 @@ public:
 
     const std::vector<Eigen::Vector3d>& points() const { return points_; }
     const std::vector<Eigen::Vector3d>& normals() const { return normals_; }
+    /// The table, CSR by key: the entries of key k are entries()[offsets()[k], offsets()[k + 1]).
+    const std::vector<std::uint32_t>& offsets() const { return offsets_; }
+    const std::vector<Entry>& entries() const { return entries_; }
 
-private:
+  private:
+    void set_extent();  ///< diameter_, center_ and distance_bins_ from the points
     PpfSettings settings_;
     PpfFeatures features_;
     std::vector<Eigen::Vector3d> points_, normals_;

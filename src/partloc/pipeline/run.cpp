@@ -190,7 +190,10 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     tbb::parallel_for(std::size_t(0), job.fiducials.size(), [&](std::size_t k) {
         const auto& f = job.fiducials[k];
         const double dense = std::max(spacing, diameters[k] / 150.0);
-        models[k] = prepare_model(f.name, f.model.mesh.get(), f.model.points.get(), dense, sampling);
+        models[k] =
+            settings.models
+                ? settings.models->prepare(f.name, f.model.mesh.get(), f.model.points.get(), dense, sampling)
+                : prepare_model(f.name, f.model.mesh.get(), f.model.points.get(), dense, sampling);
     });
 
     // The workpiece region: the crop box, or the nominal part with a margin for its uncertain pose.

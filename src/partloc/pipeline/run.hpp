@@ -2,11 +2,25 @@
 // The whole job (paper §3.4): localize each scan by its fiducials (processor), merge the registered scans,
 // fit the nominal reference surfaces (part) and build the stock and the located final part.
 #include <cstdint>
+#include <string>
 
+#include "partloc/core/localize.hpp"
 #include "partloc/pipeline/job.hpp"
 #include "partloc/pipeline/result.hpp"
 
 namespace partloc {
+
+/// Where prepared fiducial models are kept from one job to the next (io::ModelCache keeps them on disk): the
+/// fiducials are the same job after job, and preparing them (sampling, the coarse map, the PPF table) is
+/// work done before any scan can start. prepare() returns what prepare_model returns for the same
+/// arguments; it is called from several threads at once.
+class ModelStore {
+  public:
+    virtual ~ModelStore() = default;
+    virtual PreparedModel prepare(const std::string& name, const open3d::geometry::TriangleMesh* mesh,
+                                  const open3d::geometry::PointCloud* points, double dense_spacing,
+                                  double sampling) = 0;
+};
 
 struct RunSettings {
     int threads = 0;         ///< 0: all cores. Results do not depend on it.
@@ -16,6 +30,8 @@ struct RunSettings {
     /// earlier fiducial's fit already settles the scan (for tests and benchmarks that compare the two;
     /// slower, same placements).
     bool search_every_fiducial = false;
+    /// Prepared fiducial models kept between jobs; null: each job prepares its own (prepare_model).
+    ModelStore* models = nullptr;
 };
 
 /// Runs the job. Never throws for "no solution": a scan that no fiducial fits is rejected with a reason, a
