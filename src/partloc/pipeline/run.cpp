@@ -771,15 +771,20 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
                     "more than %.3g",
                     reg_sigma[i], sigma_limit));
     const bool all_in_fit = std::count(in_fit.begin(), in_fit.end(), 0) == 0;
-    result.merged = (all_in_fit ? merged : merge_registered(false))->VoxelDownSample(spacing);
+    const auto to_write = all_in_fit ? merged : merge_registered(false);
     w.rmse = fit.rmse;
     w.points = fit_points;
     w.inliers = fit.inliers;
     w.information = fit.JtJ / std::max(wfs.noise * wfs.noise, 1e-30);
-    if (!fit.ok) return not_located(fit.reason);
-    // The stock model needs only the merged points: it is built while the datums and the uncertainty are
+    if (!fit.ok) {
+        result.merged = to_write->VoxelDownSample(spacing);
+        return not_located(fit.reason);
+    }
+    // merged.ply's points, and the stock model from them, are made while the datums and the uncertainty are
     // worked out, each phase's stretches on one core filling the other (seed 106: the stock took 0.10 s of
-    // wall time after them, with 1.4 cores busy). Kept only when the part is located, as before.
+    // wall time after them, with 1.4 cores busy; the voxel grid, 0.05 s on one core, came before them until
+    // now). The stock is kept only when the part is located, as before.
+    std::shared_ptr<open3d::geometry::PointCloud> written;
     std::shared_ptr<open3d::geometry::TriangleMesh> stock;
     std::exception_ptr stock_error;
     tbb::task_group stock_task;
@@ -787,16 +792,24 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         tbb::task_group& group;
         ~WaitFor() { group.wait(); }  // also when leaving early; the task holds its own points
     } wait_for_stock{stock_task};
-    if (settings.build_stock && spacing > 0)
-        stock_task.run([&stock, &stock_error, points = result.merged, spacing] {
-            try {
+    stock_task.run([&written, &stock, &stock_error, to_write, spacing, build = settings.build_stock] {
+        try {
+            written = to_write->VoxelDownSample(spacing);
+            if (build && spacing > 0) {
                 StockSettings ss;
                 ss.spacing = spacing;
-                stock = build_stock(*points, ss);
-            } catch (...) {
-                stock_error = std::current_exception();
+                stock = build_stock(*written, ss);
             }
-        });
+        } catch (...) {
+            stock_error = std::current_exception();
+        }
+    });
+    // The merged points once the task is done; its error, if they are missing.
+    const auto take_written = [&] {
+        stock_task.wait();
+        if (!written && stock_error) std::rethrow_exception(stock_error);
+        result.merged = written;
+    };
     // The datum hierarchy (3-2-1), from the simultaneous fit's pose; or, for a simultaneous fit, each
     // datum's residual there.
     Eigen::Isometry3d T_correction = fit.T_correction;
@@ -806,7 +819,10 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         std::vector<DatumSurface>& datums = datum_surfaces;
         for (const auto& d : job.workpiece.datums) {
             const auto samples = oriented_samples(d.surfaces);
-            if (!samples) return not_located("datum " + d.name + ": its surfaces are empty");
+            if (!samples) {
+                take_written();
+                return not_located("datum " + d.name + ": its surfaces are empty");
+            }
             datums.push_back({d.name, make_surface(samples, ref_spacing)});
         }
         DatumFitSettings& ds = datum_settings;
@@ -816,7 +832,10 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
             const DatumFit df = fit_datums(merged->points_, datums, fit.T_correction, ds);
             w.datums = df.datums;
             w.points = merged->points_.size();
-            if (!df.ok) return not_located(df.reason);
+            if (!df.ok) {
+                take_written();
+                return not_located(df.reason);
+            }
             T_correction = df.T_correction;
             w.rmse = df.rmse;
             w.inliers = df.inliers;
@@ -888,7 +907,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         located->Transform(T_correction.matrix());
         result.final_part_located = located;
     }
-    stock_task.wait();
+    take_written();
     if (stock_error) std::rethrow_exception(stock_error);
     result.stock = std::move(stock);
     result.seconds = seconds_since(t0);
