@@ -73,6 +73,15 @@ bool same_bytes(const std::vector<T>& a, const std::vector<T>& b) {
     return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof(T)) == 0;
 }
 
+void expect_same_frame(const CellFrame& a, const CellFrame& b) {
+    EXPECT_EQ(a.origin, b.origin);
+    EXPECT_EQ(a.cell, b.cell);
+    EXPECT_EQ(a.inv_cell, b.inv_cell);
+    EXPECT_EQ(a.nx, b.nx);
+    EXPECT_EQ(a.ny, b.ny);
+    EXPECT_EQ(a.nz, b.nz);
+}
+
 /// Every part of the prepared model, bit for bit, and the searches built on them.
 void expect_same_model(const PreparedModel& a, const PreparedModel& b) {
     EXPECT_EQ(a.name, b.name);
@@ -85,14 +94,12 @@ void expect_same_model(const PreparedModel& a, const PreparedModel& b) {
     EXPECT_EQ(a.dense.center, b.dense.center);
     EXPECT_EQ(a.dense.diameter, b.dense.diameter);
     EXPECT_EQ(a.dense.spacing, b.dense.spacing);
+    expect_same_frame(a.dense.grid.frame(), b.dense.grid.frame());
+    EXPECT_EQ(a.dense.grid.order(), b.dense.grid.order());
+    EXPECT_EQ(a.dense.grid.starts(), b.dense.grid.starts());
+    EXPECT_EQ(a.dense.grid.distances(), b.dense.grid.distances());
     ASSERT_TRUE(a.dense.coarse && b.dense.coarse);
-    const CellFrame &fa = a.dense.coarse->frame(), &fb = b.dense.coarse->frame();
-    EXPECT_EQ(fa.origin, fb.origin);
-    EXPECT_EQ(fa.cell, fb.cell);
-    EXPECT_EQ(fa.inv_cell, fb.inv_cell);
-    EXPECT_EQ(fa.nx, fb.nx);
-    EXPECT_EQ(fa.ny, fb.ny);
-    EXPECT_EQ(fa.nz, fb.nz);
+    expect_same_frame(a.dense.coarse->frame(), b.dense.coarse->frame());
     EXPECT_EQ(a.dense.coarse->reach(), b.dense.coarse->reach());
     EXPECT_EQ(a.dense.coarse->cells(), b.dense.coarse->cells());
     ASSERT_TRUE(a.ppf && b.ppf);
@@ -249,6 +256,19 @@ TEST_F(ModelCacheTest, ATableOrMapThatDoesNotFitIsRefused) {
     cells = map.cells();
     cells.back() = static_cast<std::int32_t>(n);
     EXPECT_THROW(NearestMap(map.frame(), map.reach(), cells, n), std::invalid_argument);
+
+    const SampleGrid& g = m.dense.grid;
+    const auto& pts = m.dense.points;
+    EXPECT_NO_THROW(SampleGrid(pts, g.frame(), g.order(), g.starts(), g.distances()));
+    auto order = g.order();
+    order.back() = static_cast<std::uint32_t>(pts.size());
+    EXPECT_THROW(SampleGrid(pts, g.frame(), order, g.starts(), g.distances()), std::invalid_argument);
+    auto starts = g.starts();
+    starts[1] = starts.back() + 1;
+    EXPECT_THROW(SampleGrid(pts, g.frame(), g.order(), starts, g.distances()), std::invalid_argument);
+    auto distances = g.distances();
+    distances.pop_back();
+    EXPECT_THROW(SampleGrid(pts, g.frame(), g.order(), g.starts(), distances), std::invalid_argument);
 
     const PpfModel& t = *m.ppf;
     PpfSettings s = t.settings();

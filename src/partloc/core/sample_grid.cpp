@@ -7,6 +7,7 @@
 #include <limits>
 #include <numeric>
 #include <stdexcept>
+#include <utility>
 
 namespace partloc {
 
@@ -75,6 +76,25 @@ SampleGrid::SampleGrid(const std::vector<Eigen::Vector3d>& points, double spacin
             distance_[o] = static_cast<std::uint8_t>(d + 1);
             queue.push_back(o);
         });
+    }
+}
+
+SampleGrid::SampleGrid(const std::vector<Eigen::Vector3d>& points, const CellFrame& frame,
+                       std::vector<std::uint32_t> order, std::vector<std::uint32_t> starts,
+                       std::vector<std::uint8_t> distances)
+    : index_(std::move(order)), frame_(frame), start_(std::move(starts)), distance_(std::move(distances)) {
+    if (points.empty() && index_.empty() && start_.empty() && distance_.empty()) return;  // an empty grid
+    const std::size_t n = frame_.count();
+    if (!(frame_.cell > 0) || frame_.nx <= 0 || frame_.ny <= 0 || frame_.nz <= 0 || start_.size() != n + 1 ||
+        distance_.size() != n || index_.size() != points.size() || start_.front() != 0 ||
+        start_.back() != points.size() || std::abs(frame_.inv_cell * frame_.cell - 1.0) > 1e-12)
+        throw std::invalid_argument("SampleGrid: the cells do not fit the points");
+    for (std::size_t c = 0; c < n; ++c)
+        if (start_[c + 1] < start_[c]) throw std::invalid_argument("SampleGrid: the cells' starts decrease");
+    points_.resize(points.size());
+    for (std::size_t j = 0; j < index_.size(); ++j) {
+        if (index_[j] >= points.size()) throw std::invalid_argument("SampleGrid: a cell names no sample");
+        points_[j] = points[index_[j]];
     }
 }
 

@@ -80,6 +80,11 @@ public:
     /// `spacing`: typical distance between neighbouring samples (sets the cell size; any positive value
     /// gives exact answers, a good one fast answers).
     SampleGrid(const std::vector<Eigen::Vector3d>& points, double spacing);
+    /// A grid as built before over `points` (frame(), order(), starts() and distances() of it), e.g. read
+    /// back from the model cache. Throws std::invalid_argument when the parts do not fit the points.
+    SampleGrid(const std::vector<Eigen::Vector3d>& points, const CellFrame& frame,
+               std::vector<std::uint32_t> order, std::vector<std::uint32_t> starts,
+               std::vector<std::uint8_t> distances);
 
     static constexpr int kMaxK = 24;  ///< 20 for the statistical outlier filter (cloud_stats.hpp)
 
@@ -89,8 +94,14 @@ public:
 
     double cell_size() const { return frame_.cell; }
     bool empty() const { return points_.empty(); }
+    const CellFrame& frame() const { return frame_; }
+    /// The samples' indices in cell order; those of cell c are order()[starts()[c], starts()[c + 1]).
+    const std::vector<std::uint32_t>& order() const { return index_; }
+    const std::vector<std::uint32_t>& starts() const { return start_; }
+    /// Per cell, the Chebyshev distance in cells to the nearest occupied one (at most 255).
+    const std::vector<std::uint8_t>& distances() const { return distance_; }
 
-private:
+  private:
     std::vector<Eigen::Vector3d> points_;  // the samples in cell order (a copy: the grid can be copied freely)
     std::vector<std::uint32_t> index_;     // their indices in the caller's array
     CellFrame frame_;

@@ -99,14 +99,18 @@ void add_coarse_map(Surface& surface, double cell, double reach) {
     surface.coarse = std::make_shared<const NearestMap>(surface.points, cell, reach);
 }
 
-Surface make_surface(std::shared_ptr<open3d::geometry::PointCloud> cloud, double spacing) {
+namespace {
+/// make_surface, with `grid` built before for these points (null: built here).
+Surface build_surface(std::shared_ptr<open3d::geometry::PointCloud> cloud, double spacing, SampleGrid* grid) {
     if (!cloud->HasNormals()) throw std::invalid_argument("surface samples need normals");
     Surface s;
     s.cloud = cloud;
     s.points = cloud->points_;
     s.normals = cloud->normals_;
     for (auto& n : s.normals) n.normalize();
-    if (!s.points.empty()) {
+    if (grid) {
+        s.grid = std::move(*grid);
+    } else if (!s.points.empty()) {
         // Without a spacing, that of samples spread over a surface of the bounding box's size.
         const double d = (cloud->GetMaxBound() - cloud->GetMinBound()).norm();
         const double grid_spacing =
@@ -120,6 +124,15 @@ Surface make_surface(std::shared_ptr<open3d::geometry::PointCloud> cloud, double
     }
     s.spacing = spacing;
     return s;
+}
+}  // namespace
+
+Surface make_surface(std::shared_ptr<open3d::geometry::PointCloud> cloud, double spacing) {
+    return build_surface(std::move(cloud), spacing, nullptr);
+}
+
+Surface make_surface(std::shared_ptr<open3d::geometry::PointCloud> cloud, double spacing, SampleGrid grid) {
+    return build_surface(std::move(cloud), spacing, &grid);
 }
 
 Surface compose_surfaces(const std::vector<const Surface*>& parts,

@@ -88,6 +88,8 @@ void add_coarse_map(Surface& surface, double cell, double reach);
 
 /// Builds a Surface from points that carry normals (throws std::invalid_argument without normals).
 Surface make_surface(std::shared_ptr<open3d::geometry::PointCloud> cloud, double spacing);
+/// The same with the search grid built before for these points and spacing (Surface::grid of it).
+Surface make_surface(std::shared_ptr<open3d::geometry::PointCloud> cloud, double spacing, SampleGrid grid);
 /// The surfaces `parts` at poses `T_this_part` as one surface (Surface::parts), without a grid of its own: a
 /// grid over fiducials spread across a machine spans mostly empty space (seed 106: 0.5 s of a job's 12 s of
 /// CPU went to building such grids, one per scan and per fiducial fit). The parts must outlive it.

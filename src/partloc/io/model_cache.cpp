@@ -131,22 +131,43 @@ Digest key_of(const open3d::geometry::TriangleMesh* mesh, const open3d::geometry
     return sha256(w.bytes());
 }
 
+void write_frame(Writer& w, const CellFrame& f) {
+    w.value(f.origin.x());
+    w.value(f.origin.y());
+    w.value(f.origin.z());
+    w.value(f.cell);
+    w.value(f.inv_cell);
+    w.value(f.nx);
+    w.value(f.ny);
+    w.value(f.nz);
+}
+
+CellFrame read_frame(Reader& r) {
+    CellFrame f;
+    f.origin.x() = r.value<double>();
+    f.origin.y() = r.value<double>();
+    f.origin.z() = r.value<double>();
+    f.cell = r.value<double>();
+    f.inv_cell = r.value<double>();
+    f.nx = r.value<int>();
+    f.ny = r.value<int>();
+    f.nz = r.value<int>();
+    return f;
+}
+
 std::string encode(const PreparedModel& m) {
     Writer w;
     w.array(m.dense.cloud->points_);
     w.array(m.dense.cloud->normals_);
+    const SampleGrid& g = m.dense.grid;
+    write_frame(w, g.frame());
+    w.array(g.order());
+    w.array(g.starts());
+    w.array(g.distances());
     const NearestMap* map = m.dense.coarse.get();
     w.value<std::uint8_t>(map ? 1 : 0);
     if (map) {
-        const CellFrame& f = map->frame();
-        w.value(f.origin.x());
-        w.value(f.origin.y());
-        w.value(f.origin.z());
-        w.value(f.cell);
-        w.value(f.inv_cell);
-        w.value(f.nx);
-        w.value(f.ny);
-        w.value(f.nz);
+        write_frame(w, map->frame());
         w.value(map->reach());
         w.array(map->cells());
     }
@@ -170,17 +191,15 @@ PreparedModel decode(const std::string& payload, const std::string& name, double
     PreparedModel m;
     m.name = name;
     m.sampling = sampling;
-    m.dense = make_surface(cloud, dense_spacing);
+    const CellFrame grid_frame = read_frame(r);
+    auto order = r.array<std::uint32_t>();
+    auto starts = r.array<std::uint32_t>();
+    auto distances = r.array<std::uint8_t>();
+    m.dense = make_surface(
+        cloud, dense_spacing,
+        SampleGrid(cloud->points_, grid_frame, std::move(order), std::move(starts), std::move(distances)));
     if (r.value<std::uint8_t>()) {
-        CellFrame f;
-        f.origin.x() = r.value<double>();
-        f.origin.y() = r.value<double>();
-        f.origin.z() = r.value<double>();
-        f.cell = r.value<double>();
-        f.inv_cell = r.value<double>();
-        f.nx = r.value<int>();
-        f.ny = r.value<int>();
-        f.nz = r.value<int>();
+        const CellFrame f = read_frame(r);
         const auto reach = r.value<double>();
         auto cells = r.array<std::int32_t>();
         m.dense.coarse =
@@ -229,9 +248,12 @@ PreparedModel ModelCache::prepare(const std::string& name, const open3d::geometr
     std::error_code ec;
     if (fs::is_regular_file(file, ec)) {
         try {
-            std::ifstream in(file, std::ios::binary);
-            std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-            if (!in.good() && !in.eof()) throw std::runtime_error("cannot be read");
+            std::ifstream in(file, std::ios::binary | std::ios::ate);
+            const std::streamoff length = in ? static_cast<std::streamoff>(in.tellg()) : -1;
+            if (length < 0) throw std::runtime_error("cannot be read");
+            std::string bytes(static_cast<std::size_t>(length), '\0');
+            in.seekg(0);
+            if (!in.read(bytes.data(), length)) throw std::runtime_error("cannot be read");
             if (bytes.size() < kHeader || std::memcmp(bytes.data(), kMagic, sizeof kMagic) != 0)
                 throw std::runtime_error("not a model cache file");
             if (std::memcmp(bytes.data() + sizeof kMagic, key.data(), kDigest) != 0)

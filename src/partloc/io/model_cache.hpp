@@ -1,7 +1,8 @@
 #pragma once
 // Prepared fiducial models kept on disk from one job to the next (RunSettings::models, `partloc run
-// --cache`). The fiducials are the same job after job; preparing them (the dense samples, the coarse
-// nearest map, the PPF table) took 0.13-0.15 s of seed 106's 2 s before any scan could start (issue 3).
+// --cache`). The fiducials are the same job after job; preparing them (the dense samples and their search
+// grid, the coarse nearest map, the PPF table) took 0.13-0.15 s of seed 106's 2 s before any scan could start
+// (issue 3).
 //
 // A file is named by the SHA-256 of everything the preparation depends on: this build's id (a hash of the
 // sources that prepare and store models, the compiler and Open3D's version, made at build time), the model's
