@@ -279,7 +279,11 @@ TEST_F(ModelCacheTest, ATableOrMapThatDoesNotFitIsRefused) {
                  std::invalid_argument);
     auto entries = t.entries();
     ASSERT_FALSE(entries.empty());
-    entries.front().model_index = static_cast<std::uint32_t>(t.points().size());
+    entries.front().row =
+        static_cast<std::uint32_t>(t.points().size() * s.alpha_bins);  // past the last point
+    EXPECT_THROW(PpfModel(t.points(), t.normals(), s, t.offsets(), entries, t.max_bucket()),
+                 std::invalid_argument);
+    entries.front().row = t.entries().front().row + 1;  // not a row's start
     EXPECT_THROW(PpfModel(t.points(), t.normals(), s, t.offsets(), entries, t.max_bucket()),
                  std::invalid_argument);
     entries = t.entries();

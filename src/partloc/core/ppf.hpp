@@ -80,7 +80,7 @@ public:
              const PpfSettings& settings);
 
     struct Entry {
-        std::uint32_t model_index;
+        std::uint32_t row;  ///< the first point's row in a vote accumulator: its index times alpha_bins
         /// Angle of the pair about the first normal as a fraction of a turn, fixed point (2^32 = one turn):
         /// the difference of two such angles wraps around by itself in unsigned arithmetic.
         std::uint32_t turn;
