@@ -31,13 +31,15 @@ constexpr bool kPlain = std::is_trivially_copyable_v<T> || std::is_same_v<T, Eig
                         std::is_same_v<T, Eigen::Vector3i>;
 static_assert(sizeof(Eigen::Vector3d) == 3 * sizeof(double) && sizeof(Eigen::Vector3i) == 3 * sizeof(int));
 
-Digest sha256(const std::string& bytes) {
+Digest sha256(const char* data, std::size_t size) {
     Digest d{};
     unsigned int n = 0;
-    if (EVP_Digest(bytes.data(), bytes.size(), d.data(), &n, EVP_sha256(), nullptr) != 1 || n != kDigest)
+    if (EVP_Digest(data, size, d.data(), &n, EVP_sha256(), nullptr) != 1 || n != kDigest)
         throw std::runtime_error("SHA-256 failed");
     return d;
 }
+
+Digest sha256(const std::string& bytes) { return sha256(bytes.data(), bytes.size()); }
 
 std::string hex(const Digest& d) {
     static const char* digits = "0123456789abcdef";
@@ -180,9 +182,9 @@ std::string encode(const PreparedModel& m) {
 }
 
 /// The model encode() wrote, built as prepare_model builds it; throws when the bytes do not make one.
-PreparedModel decode(const std::string& payload, const std::string& name, double dense_spacing,
+PreparedModel decode(const char* payload, std::size_t size, const std::string& name, double dense_spacing,
                      double sampling) {
-    Reader r(payload.data(), payload.size());
+    Reader r(payload, size);
     auto cloud = std::make_shared<open3d::geometry::PointCloud>();
     cloud->points_ = r.array<Eigen::Vector3d>();
     cloud->normals_ = r.array<Eigen::Vector3d>();
@@ -261,10 +263,11 @@ PreparedModel ModelCache::prepare(const std::string& name, const open3d::geometr
             std::uint64_t size = 0;
             std::memcpy(&size, bytes.data() + sizeof kMagic + 2 * kDigest, sizeof size);
             if (size != bytes.size() - kHeader) throw std::runtime_error("truncated");
-            const std::string payload = bytes.substr(kHeader);
-            if (std::memcmp(bytes.data() + sizeof kMagic + kDigest, sha256(payload).data(), kDigest) != 0)
+            const char* payload = bytes.data() + kHeader;  // read in place: no copy of the megabytes
+            if (std::memcmp(bytes.data() + sizeof kMagic + kDigest, sha256(payload, size).data(), kDigest) !=
+                0)
                 throw std::runtime_error("damaged (its checksum does not match)");
-            PreparedModel m = decode(payload, name, dense_spacing, sampling);
+            PreparedModel m = decode(payload, size, name, dense_spacing, sampling);
             fs::last_write_time(file, fs::file_time_type::clock::now(), ec);  // used now: trimmed last
             std::lock_guard<std::mutex> lock(mutex_);
             ++hits_;
