@@ -1,6 +1,7 @@
 # Writes OUT: a C++ source defining partloc::io::build_id(), the SHA-256 of the sources that prepare and
-# store fiducial models (FILES, separated by |), the compiler and Open3D's version (EXTRA). The model cache keys
-# its files by it, so that a build whose preparation may differ never reads another build's models.
+# store fiducial models (FILES, separated by |), the compiler, its flags, Open3D's and Eigen's versions
+# (EXTRA). The model cache keys its files by it, so that a build whose preparation may differ never reads
+# another build's models.
 # Run by the build (CMakeLists.txt) whenever one of FILES changes.
 string(REPLACE "|" ";" FILES "${FILES}")
 list(SORT FILES)

@@ -242,6 +242,47 @@ fs::path ModelCache::file_for(const open3d::geometry::TriangleMesh* mesh,
     return dir_ / (hex(key_of(mesh, points, dense_spacing, sampling)) + ".model");
 }
 
+namespace {
+
+/// The model in `file`, written by store() under `key`; throws std::runtime_error saying what is wrong with
+/// the file otherwise.
+PreparedModel load(const fs::path& file, const Digest& key, const std::string& name, double dense_spacing,
+                   double sampling) {
+    std::ifstream in(file, std::ios::binary | std::ios::ate);
+    const std::streamoff length = in ? static_cast<std::streamoff>(in.tellg()) : -1;
+    if (length < 0) throw std::runtime_error("cannot be read");
+    std::string bytes(static_cast<std::size_t>(length), '\0');
+    in.seekg(0);
+    if (!in.read(bytes.data(), length)) throw std::runtime_error("cannot be read");
+    if (bytes.size() < kHeader || std::memcmp(bytes.data(), kMagic, sizeof kMagic) != 0)
+        throw std::runtime_error("not a model cache file");
+    if (std::memcmp(bytes.data() + sizeof kMagic, key.data(), kDigest) != 0)
+        throw std::runtime_error("holds another model");
+    std::uint64_t size = 0;
+    std::memcpy(&size, bytes.data() + sizeof kMagic + 2 * kDigest, sizeof size);
+    if (size != bytes.size() - kHeader) throw std::runtime_error("truncated");
+    const char* payload = bytes.data() + kHeader;  // read in place: no copy of the megabytes
+    if (std::memcmp(bytes.data() + sizeof kMagic + kDigest, sha256(payload, size).data(), kDigest) != 0)
+        throw std::runtime_error("damaged (its checksum does not match)");
+    return decode(payload, size, name, dense_spacing, sampling);
+}
+
+/// Writes model m to `file` (whole or not at all): the header (magic, key, the payload's SHA-256 and size),
+/// then the payload. Throws std::runtime_error when it cannot.
+void store(const fs::path& file, const Digest& key, const PreparedModel& m) {
+    const std::string payload = encode(m);
+    const Digest check = sha256(payload);
+    std::string bytes(kMagic, sizeof kMagic);
+    bytes.append(reinterpret_cast<const char*>(key.data()), kDigest);
+    bytes.append(reinterpret_cast<const char*>(check.data()), kDigest);
+    const std::uint64_t size = payload.size();
+    bytes.append(reinterpret_cast<const char*>(&size), sizeof size);
+    bytes += payload;
+    write_text_atomically(file, bytes);
+}
+
+}  // namespace
+
 PreparedModel ModelCache::prepare(const std::string& name, const open3d::geometry::TriangleMesh* mesh,
                                   const open3d::geometry::PointCloud* points, double dense_spacing,
                                   double sampling) {
@@ -250,24 +291,7 @@ PreparedModel ModelCache::prepare(const std::string& name, const open3d::geometr
     std::error_code ec;
     if (fs::is_regular_file(file, ec)) {
         try {
-            std::ifstream in(file, std::ios::binary | std::ios::ate);
-            const std::streamoff length = in ? static_cast<std::streamoff>(in.tellg()) : -1;
-            if (length < 0) throw std::runtime_error("cannot be read");
-            std::string bytes(static_cast<std::size_t>(length), '\0');
-            in.seekg(0);
-            if (!in.read(bytes.data(), length)) throw std::runtime_error("cannot be read");
-            if (bytes.size() < kHeader || std::memcmp(bytes.data(), kMagic, sizeof kMagic) != 0)
-                throw std::runtime_error("not a model cache file");
-            if (std::memcmp(bytes.data() + sizeof kMagic, key.data(), kDigest) != 0)
-                throw std::runtime_error("holds another model");
-            std::uint64_t size = 0;
-            std::memcpy(&size, bytes.data() + sizeof kMagic + 2 * kDigest, sizeof size);
-            if (size != bytes.size() - kHeader) throw std::runtime_error("truncated");
-            const char* payload = bytes.data() + kHeader;  // read in place: no copy of the megabytes
-            if (std::memcmp(bytes.data() + sizeof kMagic + kDigest, sha256(payload, size).data(), kDigest) !=
-                0)
-                throw std::runtime_error("damaged (its checksum does not match)");
-            PreparedModel m = decode(payload, size, name, dense_spacing, sampling);
+            PreparedModel m = load(file, key, name, dense_spacing, sampling);
             fs::last_write_time(file, fs::file_time_type::clock::now(), ec);  // used now: trimmed last
             std::lock_guard<std::mutex> lock(mutex_);
             ++hits_;
@@ -282,15 +306,7 @@ PreparedModel ModelCache::prepare(const std::string& name, const open3d::geometr
         ++misses_;
     }
     try {
-        std::string payload = encode(m);
-        const Digest check = sha256(payload);
-        std::string bytes(kMagic, sizeof kMagic);
-        bytes.append(reinterpret_cast<const char*>(key.data()), kDigest);
-        bytes.append(reinterpret_cast<const char*>(check.data()), kDigest);
-        const std::uint64_t size = payload.size();
-        bytes.append(reinterpret_cast<const char*>(&size), sizeof size);
-        bytes += payload;
-        write_text_atomically(file, bytes);
+        store(file, key, m);
         trim(file);
     } catch (const std::exception& e) {
         note(std::string("cannot keep ") + name + " in the model cache: " + e.what());
