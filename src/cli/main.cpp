@@ -40,8 +40,7 @@ int main(int argc, char** argv) {
         return code == 0 ? 0 : 2;
     }
     if (*run)
-        return partloc::cli::command_run(job_file, out_dir, threads, seed, no_cache ? "" : cache_dir,
-                                         !no_cache);
+        return partloc::cli::command_run(job_file, out_dir, threads, seed, cache_dir, !no_cache);
     if (*demo) return partloc::cli::command_demo(demo_out, demo_seed, threads);
     if (*simulate) return partloc::cli::command_simulate(sim_out, sim_seed);
     return 2;

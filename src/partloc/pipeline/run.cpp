@@ -782,8 +782,8 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     }
     // merged.ply's points, and the stock model from them, are made while the datums and the uncertainty are
     // worked out, each phase's stretches on one core filling the other (seed 106: the stock took 0.10 s of
-    // wall time after them, with 1.4 cores busy; the voxel grid, 0.05 s on one core, came before them until
-    // now). The stock is kept only when the part is located, as before.
+    // wall time after them, with 1.4 cores busy; the voxel grid, 0.05 s on one core, ran ahead of them at
+    // 33c94a5). The stock is kept only when the part is located, as before.
     std::shared_ptr<open3d::geometry::PointCloud> written;
     std::shared_ptr<open3d::geometry::TriangleMesh> stock;
     std::exception_ptr stock_error;
