@@ -11,6 +11,7 @@
 #include <filesystem>
 #include <fstream>
 
+#include "partloc/core/surface.hpp"
 #include "partloc/io/model_cache.hpp"
 #include "partloc/pipeline/run.hpp"
 #include "partloc/sim/scenario.hpp"
@@ -147,6 +148,23 @@ TEST_F(ModelCacheTest, AHitGivesWhatPrepareModelGives) {
     expect_same_model(cached(again, 0), want);
     EXPECT_EQ(again.hits(), 1u);
     EXPECT_EQ(again.misses(), 0u);
+    EXPECT_TRUE(again.problems().empty());
+}
+
+// A fiducial given as points with normals (prepare_model's other path: its coarse samples by a voxel grid).
+TEST_F(ModelCacheTest, APointModelToo) {
+    const auto points = sample_mesh(*mesh(0), 0.5 * dense(0));
+    ASSERT_TRUE(points->HasNormals());
+    const auto prepare = [&](io::ModelCache* cache) {
+        return cache ? cache->prepare("p", nullptr, points.get(), dense(0), sampling(0))
+                     : prepare_model("p", nullptr, points.get(), dense(0), sampling(0));
+    };
+    const PreparedModel want = prepare(nullptr);
+    io::ModelCache first(dir_);
+    expect_same_model(prepare(&first), want);
+    io::ModelCache again(dir_);
+    expect_same_model(prepare(&again), want);
+    EXPECT_EQ(again.hits(), 1u);
     EXPECT_TRUE(again.problems().empty());
 }
 
