@@ -66,9 +66,7 @@ NearestMap::NearestMap(const CellFrame& frame, double reach, std::vector<std::in
                        std::size_t samples)
     : frame_(frame), reach_(reach), nearest_(std::move(cells)) {
     if (nearest_.empty()) return;  // a map of no samples
-    if (!(frame_.cell > 0) || !(reach_ >= 0) || frame_.nx <= 0 || frame_.ny <= 0 || frame_.nz <= 0 ||
-        nearest_.size() != frame_.count() || !std::isfinite(frame_.origin.sum()) ||
-        std::abs(frame_.inv_cell * frame_.cell - 1.0) > 1e-12)
+    if (!frame_.consistent() || !(reach_ >= 0) || nearest_.size() != frame_.count())
         throw std::invalid_argument("NearestMap: the cells do not fit the frame");
     for (const std::int32_t i : nearest_)
         if (i < -1 || (i >= 0 && static_cast<std::size_t>(i) >= samples))

@@ -117,11 +117,6 @@ Eigen::Isometry3d ppf_align_to_x(const Eigen::Vector3d& p, const Eigen::Vector3d
 PpfModel::PpfModel(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& normals,
                    const PpfSettings& settings)
     : settings_(settings), features_(settings), points_(points), normals_(normals) {
-    if (points.size() != normals.size() || points.empty())
-        throw std::invalid_argument("PPF model needs points with normals");
-    if (settings_.alpha_bins < 1 || points.size() > std::numeric_limits<std::uint32_t>::max() /
-                                                        static_cast<std::size_t>(settings_.alpha_bins))
-        throw std::invalid_argument("PPF model: too many points, or no alpha bins");
     set_extent();
     const int nkeys = distance_bins_ * settings_.angle_bins * settings_.angle_bins * settings_.angle_bins;
 
@@ -175,9 +170,6 @@ PpfModel::PpfModel(const std::vector<Eigen::Vector3d>& points, const std::vector
       offsets_(std::move(offsets)),
       entries_(std::move(entries)),
       max_bucket_(max_bucket) {
-    if (points.size() != normals.size() || points.empty())
-        throw std::invalid_argument("PPF model needs points with normals");
-    if (settings_.alpha_bins < 1) throw std::invalid_argument("PPF model: no alpha bins");
     set_extent();
     const std::size_t nkeys = static_cast<std::size_t>(distance_bins_) * settings_.angle_bins *
                               settings_.angle_bins * settings_.angle_bins;
@@ -196,6 +188,12 @@ PpfModel::PpfModel(const std::vector<Eigen::Vector3d>& points, const std::vector
 }
 
 void PpfModel::set_extent() {
+    if (points_.size() != normals_.size() || points_.empty())
+        throw std::invalid_argument("PPF model needs points with normals");
+    // An entry's row (index x alpha bins) is 32 bits.
+    if (settings_.alpha_bins < 1 || points_.size() > std::numeric_limits<std::uint32_t>::max() /
+                                                         static_cast<std::size_t>(settings_.alpha_bins))
+        throw std::invalid_argument("PPF model: too many points, or no alpha bins");
     Eigen::AlignedBox3d box;
     for (const auto& p : points_) box.extend(p);
     diameter_ = box.diagonal().norm();

@@ -122,7 +122,9 @@ public:
     const std::vector<Entry>& entries() const { return entries_; }
 
   private:
-    void set_extent();  ///< diameter_, center_ and distance_bins_ from the points
+    /// Checks the points (with normals, not too many for the entries' rows), then diameter_, center_ and
+    /// distance_bins_ from them.
+    void set_extent();
     PpfSettings settings_;
     PpfFeatures features_;
     std::vector<Eigen::Vector3d> points_, normals_;

@@ -85,9 +85,8 @@ SampleGrid::SampleGrid(const std::vector<Eigen::Vector3d>& points, const CellFra
     : index_(std::move(order)), frame_(frame), start_(std::move(starts)), distance_(std::move(distances)) {
     if (points.empty() && index_.empty() && start_.empty() && distance_.empty()) return;  // an empty grid
     const std::size_t n = frame_.count();
-    if (!(frame_.cell > 0) || frame_.nx <= 0 || frame_.ny <= 0 || frame_.nz <= 0 || start_.size() != n + 1 ||
-        distance_.size() != n || index_.size() != points.size() || start_.front() != 0 ||
-        start_.back() != points.size() || std::abs(frame_.inv_cell * frame_.cell - 1.0) > 1e-12)
+    if (!frame_.consistent() || start_.size() != n + 1 || distance_.size() != n ||
+        index_.size() != points.size() || start_.front() != 0 || start_.back() != points.size())
         throw std::invalid_argument("SampleGrid: the cells do not fit the points");
     for (std::size_t c = 0; c < n; ++c)
         if (start_[c + 1] < start_[c]) throw std::invalid_argument("SampleGrid: the cells' starts decrease");

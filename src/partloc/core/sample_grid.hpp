@@ -11,6 +11,7 @@
 // (BENCHMARK.md); tests/test_surface.cpp checks that it returns exactly what the KD-tree returns.
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <cmath>
 #include <cstdint>
 #include <vector>
 
@@ -45,6 +46,12 @@ struct CellFrame {
     }
     /// The cell holding p, clamped into the frame: its coordinates, and its index.
     Eigen::Array3i clamped_cell(const Eigen::Vector3d& p) const;
+    /// Whether the fields fit together as the constructor makes them (a frame read back from a file): a
+    /// finite origin, a positive cell and its inverse, cells on every axis.
+    bool consistent() const {
+        return std::isfinite(origin.sum()) && cell > 0 && std::abs(inv_cell * cell - 1.0) <= 1e-12 &&
+               nx > 0 && ny > 0 && nz > 0;
+    }
     std::size_t clamped_index(const Eigen::Vector3d& p) const {
         const Eigen::Array3i c = clamped_cell(p);
         return index(c.x(), c.y(), c.z());

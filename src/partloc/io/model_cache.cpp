@@ -157,6 +157,9 @@ CellFrame read_frame(Reader& r) {
     return f;
 }
 
+/// The cache file of the model with this key.
+fs::path file_of(const fs::path& dir, const Digest& key) { return dir / (hex(key) + ".model"); }
+
 std::string encode(const PreparedModel& m) {
     Writer w;
     w.array(m.dense.cloud->points_);
@@ -239,7 +242,7 @@ fs::path ModelCache::default_dir() {
 fs::path ModelCache::file_for(const open3d::geometry::TriangleMesh* mesh,
                               const open3d::geometry::PointCloud* points, double dense_spacing,
                               double sampling) const {
-    return dir_ / (hex(key_of(mesh, points, dense_spacing, sampling)) + ".model");
+    return file_of(dir_, key_of(mesh, points, dense_spacing, sampling));
 }
 
 namespace {
@@ -287,7 +290,7 @@ PreparedModel ModelCache::prepare(const std::string& name, const open3d::geometr
                                   const open3d::geometry::PointCloud* points, double dense_spacing,
                                   double sampling) {
     const Digest key = key_of(mesh, points, dense_spacing, sampling);
-    const fs::path file = dir_ / (hex(key) + ".model");
+    const fs::path file = file_of(dir_, key);
     std::error_code ec;
     if (fs::is_regular_file(file, ec)) {
         try {
