@@ -65,6 +65,15 @@ std::shared_ptr<open3d::geometry::PointCloud> to_cloud(RawGeometry&& g, const st
     if (g.vertices.empty()) throw InputError(name, "file has no points");
     auto cloud = std::make_shared<open3d::geometry::PointCloud>();
     const bool with_normals = g.normals.size() == g.vertices.size();
+    // Every point finite and no normals (a scan's usual form): the parser's points become the cloud's, scaled
+    // in place, instead of copied one by one.
+    if (!with_normals && std::all_of(g.vertices.begin(), g.vertices.end(),
+                                     [](const Eigen::Vector3d& v) { return v.allFinite(); })) {
+        cloud->points_ = std::move(g.vertices);
+        if (scale != 1.0)
+            for (auto& p : cloud->points_) p *= scale;
+        return cloud;
+    }
     cloud->points_.reserve(g.vertices.size());
     if (with_normals) cloud->normals_.reserve(g.vertices.size());
     bool normals_finite = true;

@@ -21,6 +21,10 @@ std::string read_file_bytes(const fs::path& path, const std::string& name) {
     std::unique_ptr<std::FILE, int (*)(std::FILE*)> file(std::fopen(path.c_str(), "rb"), &std::fclose);
     if (!file) throw InputError(name, std::string("cannot be opened (") + std::strerror(errno) + ")" + where);
     std::string bytes;
+    // Read into a string of the file's size at once: growing it by doubling copied and touched twice a
+    // scan's bytes (the load of seed 106's six scans spent a third of its time in page faults).
+    const auto size = fs::file_size(path, ec);
+    if (!ec && size > 0 && size < (std::size_t{1} << 40)) bytes.reserve(static_cast<std::size_t>(size));
     char buffer[1 << 16];
     std::size_t n = 0;
     while ((n = std::fread(buffer, 1, sizeof buffer, file.get())) > 0) bytes.append(buffer, n);
