@@ -4,6 +4,12 @@
 #   bench/run_all.sh [build_dir] [out_dir]          all tables
 #   PARTS="compare" bench/run_all.sh                only the comparison (PARTS: compare points scans)
 #   SEEDS="101 106" METHODS="partloc" bench/run_all.sh
+#   PARTS="rounds run" ROUNDS=4 bench/run_all.sh    the later sections' way (BENCHMARK.md, "State at 3076f09"):
+#     rounds: on SCALING_SEED, ROUNDS rounds of partloc cold, partloc warm (from the model cache), Open3D and
+#             the paper's pipeline, one after another, so that the machine's drift falls on all alike;
+#     run:    `partloc run` end to end with the stock (simulated jobs of RUN_SEEDS), cold and warm
+#             alternating, ROUNDS rounds, timed by /usr/bin/time.
+#   SPACINGS="0.856 0.383 0.1915 0.1354 0.0606" PARTS=points bench/run_all.sh   up to 10 M points per scan
 set -u
 BUILD=${1:-build}
 OUT=${2:-bench/results}
@@ -14,6 +20,8 @@ PARTS=${PARTS:-"compare points scans"}
 SCALING_SEED=${SCALING_SEED:-106}
 SPACINGS=${SPACINGS:-"0.856 0.383 0.1915 0.1354"}  # about 50 k, 250 k, 1 M, 2 M points per scan
 PER_POSITION=${PER_POSITION:-"2 4 10 20"}          # 6, 12, 30, 60 scans (three A positions)
+ROUNDS=${ROUNDS:-4}
+RUN_SEEDS=${RUN_SEEDS:-"106 3"}
 mkdir -p "$OUT"
 CACHE=$(mktemp -d)  # partloc's model cache for the comparison's second runs
 trap 'rm -rf "$CACHE"' EXIT
@@ -53,4 +61,34 @@ if [[ " $PARTS " == *" scans "* ]]; then
   { header
     for k in $PER_POSITION; do run "$BENCH" scaling --seed "$SCALING_SEED" --per-position "$k"; done
   } | tee "$OUT/scaling_scans.txt"
+fi
+if [[ " $PARTS " == *" rounds "* ]]; then
+  "$BENCH" compare --method partloc --seed "$SCALING_SEED" --cache "$CACHE" > /dev/null 2>&1  # fills the cache
+  { header
+    for r in $(seq 1 "$ROUNDS"); do
+      run "$BENCH" compare --method partloc --seed "$SCALING_SEED" | grep -v '^method'
+      echo "# ^ partloc cold (no cache), round $r"
+      run "$BENCH" compare --method partloc --seed "$SCALING_SEED" --cache "$CACHE" | grep -v '^method'
+      echo "# ^ partloc warm (--cache), round $r"
+      for m in open3d paper; do
+        [[ " $METHODS " == *" $m "* ]] && run "$BENCH" compare --method "$m" --seed "$SCALING_SEED" | grep -v '^method'
+      done
+    done
+  } | tee "$OUT/compare_rounds.txt"
+fi
+if [[ " $PARTS " == *" run "* ]]; then
+  PARTLOC="$BUILD/partloc"
+  JOBS=$(mktemp -d)
+  { echo "# partloc run JOB --out DIR [--no-cache | --cache DIR] (with the stock), $ROUNDS rounds alternating;"
+    echo "# columns: seed, cold/warm, wall s, user s, system s, peak KB (/usr/bin/time)"
+    for s in $RUN_SEEDS; do
+      "$PARTLOC" simulate --seed "$s" --out "$JOBS/j$s" > /dev/null
+      "$PARTLOC" run "$JOBS/j$s/job.yaml" --out "$JOBS/out" --cache "$CACHE" > /dev/null 2>&1  # fills the cache
+    done
+    for r in $(seq 1 "$ROUNDS"); do for s in $RUN_SEEDS; do
+      /usr/bin/time -f "$s cold %e %U %S %M" "$PARTLOC" run "$JOBS/j$s/job.yaml" --out "$JOBS/out" --no-cache 2>&1 > /dev/null | tail -1
+      /usr/bin/time -f "$s warm %e %U %S %M" "$PARTLOC" run "$JOBS/j$s/job.yaml" --out "$JOBS/out" --cache "$CACHE" 2>&1 > /dev/null | tail -1
+    done; done
+  } | tee "$OUT/run_rounds.txt"
+  rm -rf "$JOBS"
 fi
