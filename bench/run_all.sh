@@ -28,6 +28,9 @@ trap 'rm -rf "$CACHE"' EXIT
 [ -x "$BENCH" ] || { echo "no $BENCH: build first (cmake --build $BUILD)" >&2; exit 2; }
 
 header() { "$BENCH" header; }
+fill_cache() {  # a first partloc run on seed $1, which leaves its fiducials' prepared models in $CACHE
+  "$BENCH" compare --method partloc --seed "$1" --cache "$CACHE" > /dev/null 2>&1
+}
 run() {  # one row; a failed process still leaves a line saying so
     local out
     out=$("$@" 2>&1); local rc=$?
@@ -46,7 +49,7 @@ if [[ " $PARTS " == *" compare "* ]]; then
       if [ "$m" = partloc ]; then
         # Again as the second job with these fiducials: their prepared models read from the model cache
         # (the row's note says "model cache ...: N read"); a first run fills it.
-        "$BENCH" compare --method partloc --seed "$s" --cache "$CACHE" > /dev/null 2>&1
+        fill_cache "$s"
         run "$BENCH" compare --method partloc --seed "$s" --cache "$CACHE"
       fi
     done; done
@@ -63,15 +66,15 @@ if [[ " $PARTS " == *" scans "* ]]; then
   } | tee "$OUT/scaling_scans.txt"
 fi
 if [[ " $PARTS " == *" rounds "* ]]; then
-  "$BENCH" compare --method partloc --seed "$SCALING_SEED" --cache "$CACHE" > /dev/null 2>&1  # fills the cache
+  fill_cache "$SCALING_SEED"
   { header
     for r in $(seq 1 "$ROUNDS"); do
-      run "$BENCH" compare --method partloc --seed "$SCALING_SEED" | grep -v '^method'
+      run "$BENCH" compare --method partloc --seed "$SCALING_SEED"
       echo "# ^ partloc cold (no cache), round $r"
-      run "$BENCH" compare --method partloc --seed "$SCALING_SEED" --cache "$CACHE" | grep -v '^method'
+      run "$BENCH" compare --method partloc --seed "$SCALING_SEED" --cache "$CACHE"
       echo "# ^ partloc warm (--cache), round $r"
       for m in open3d paper; do
-        [[ " $METHODS " == *" $m "* ]] && run "$BENCH" compare --method "$m" --seed "$SCALING_SEED" | grep -v '^method'
+        [[ " $METHODS " == *" $m "* ]] && run "$BENCH" compare --method "$m" --seed "$SCALING_SEED"
       done
     done
   } | tee "$OUT/compare_rounds.txt"
