@@ -37,7 +37,7 @@ int counts_main(int argc, char** argv) {
         seconds += s;
         int reg = 0, wr = 0, mi = 0;
         for (std::size_t i = 0; i < r.scans.size(); ++i) {
-            if (!r.scans[i].registered) {
+            if (!r.scans[i].valid) {
                 (fiducial_in_view(sj, i) ? mi : none_in_view) += 1;
                 continue;
             }
@@ -47,7 +47,7 @@ int counts_main(int argc, char** argv) {
         wrong += wr;
         missed += mi;
         double eo = -1, er = -1;
-        if (r.located) {
+        if (r.workpiece.valid) {
             ++located;
             const PoseError e = pose_error(r.workpiece.T_machine_workpiece, sj.truth.T_machine_workpiece);
             eo = e.translation;

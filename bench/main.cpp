@@ -76,14 +76,14 @@ MethodOutcome run_partloc(const Job& job, std::uint64_t seed, bool stock, io::Mo
                         " read, " + std::to_string(cache->misses()) + " prepared");
     MethodOutcome out;
     for (std::size_t i = 0; i < r.scans.size(); ++i)
-        if (!r.scans[i].registered)
-            notes.push_back("scan " + std::to_string(i) + " rejected: " + r.scans[i].message);
+        if (!r.scans[i].valid)
+            notes.push_back("scan " + std::to_string(i) + " rejected: " + r.scans[i].reason);
     for (const auto& s : r.scans)
-        out.T_machine_scan.push_back(s.registered ? std::optional<Eigen::Isometry3d>(s.T_machine_scan)
+        out.T_machine_scan.push_back(s.valid ? std::optional<Eigen::Isometry3d>(s.T_machine_scan)
                                                   : std::nullopt);
-    out.located = r.located;
+    out.located = r.workpiece.valid;
     out.T_machine_workpiece = r.workpiece.T_machine_workpiece;
-    out.message = r.workpiece.message;
+    out.message = r.workpiece.reason;
     return out;
 }
 

@@ -108,7 +108,7 @@ int stock_main(int argc, char** argv) {
     const JobResult result = run_job(cell.job, rs);
     if (!result.merged || result.merged->points_.empty()) {
         std::printf("seed %llu: no merged points (%s)\n", static_cast<unsigned long long>(spec.seed),
-                    result.workpiece.message.c_str());
+                    result.workpiece.reason.c_str());
         return 0;
     }
     const auto& merged = *result.merged;

@@ -15,6 +15,7 @@
 #include <random>
 #include <sstream>
 
+#include "test_note.hpp"
 #include "partloc/core/datum_fit.hpp"
 #include "partloc/core/geometry.hpp"
 #include "partloc/core/workpiece_fit.hpp"
@@ -139,13 +140,13 @@ TEST(PartFit, PointsScatteringFarMoreThanTheNoiseAreNotALocatedPart) {
     const Eigen::Isometry3d& T_true = cs.T_true;
     WorkpieceFitSettings ws = cs.ws;
     const WorkpieceFit right = fit_reference_surfaces(corner.all, reference, ws);
-    EXPECT_TRUE(right.ok) << right.reason;
-    EXPECT_LT(pose_error(right.T_correction * N, T_true).translation, 0.02);
+    EXPECT_TRUE(right.valid) << right.reason;
+    EXPECT_LT(pose_error(right.T_located_nominal * N, T_true).translation, 0.02);
     ws.noise = 0.02;
     const WorkpieceFit refused = fit_reference_surfaces(corner.all, reference, ws);
-    std::printf("rmse %.4f with the noise said 0.05, %.4f with 0.02: %s\n", right.rmse, refused.rmse,
+    partloc::test::note("rmse %.4f with the noise said 0.05, %.4f with 0.02: %s\n", right.rmse, refused.rmse,
                 refused.reason.c_str());
-    EXPECT_FALSE(refused.ok);
+    EXPECT_FALSE(refused.valid);
     EXPECT_NE(refused.reason.find("did not find the part"), std::string::npos) << refused.reason;
 }
 
@@ -162,14 +163,14 @@ TEST(PartFit, PointsOnOneOrTwoFacesDoNotFixThePart) {
     two.insert(two.end(), corner.b.begin(), corner.b.end());
     const WorkpieceFit floor_and_wall = fit_reference_surfaces(two, cs.reference, cs.ws);
     const WorkpieceFit all = fit_reference_surfaces(corner.all, cs.reference, cs.ws);
-    std::printf("conditioning: one face %.5f, two %.5f, three %.5f\n", floor.conditioning,
+    partloc::test::note("conditioning: one face %.5f, two %.5f, three %.5f\n", floor.conditioning,
                 floor_and_wall.conditioning, all.conditioning);
     for (const WorkpieceFit* f : {&floor, &floor_and_wall}) {
-        EXPECT_FALSE(f->ok);
+        EXPECT_FALSE(f->valid);
         EXPECT_NE(f->reason.find("to fix all six degrees of freedom"), std::string::npos) << f->reason;
     }
-    EXPECT_TRUE(all.ok) << all.reason;
-    EXPECT_LT(pose_error(all.T_correction * cs.N, cs.T_true).translation, 0.02);
+    EXPECT_TRUE(all.valid) << all.reason;
+    EXPECT_LT(pose_error(all.T_located_nominal * cs.N, cs.T_true).translation, 0.02);
 }
 
 TEST(DatumFit, HonoursThePrimaryWhereTheSimultaneousFitSplitsTheDifference) {
@@ -208,19 +209,19 @@ TEST(DatumFit, HonoursThePrimaryWhereTheSimultaneousFitSplitsTheDifference) {
     const auto fit_both = [&](const CastCorner& corner) {
         Fits f;
         f.sim_fit = fit_reference_surfaces(corner.all, reference, ws);
-        EXPECT_TRUE(f.sim_fit.ok) << f.sim_fit.reason;
-        f.datum_fit = fit_datums(corner.all, datums, f.sim_fit.T_correction, dst);
-        EXPECT_TRUE(f.datum_fit.ok) << f.datum_fit.reason;
+        EXPECT_TRUE(f.sim_fit.valid) << f.sim_fit.reason;
+        f.datum_fit = fit_datums(corner.all, datums, f.sim_fit.T_located_nominal, dst);
+        EXPECT_TRUE(f.datum_fit.valid) << f.datum_fit.reason;
         EXPECT_TRUE(f.datum_fit.converged);
-        f.sim = f.sim_fit.T_correction * N;
-        f.dat = f.datum_fit.T_correction * N;
+        f.sim = f.sim_fit.T_located_nominal * N;
+        f.dat = f.datum_fit.T_located_nominal * N;
         return f;
     };
     const Fits s = fit_both(square), t = fit_both(cc);
 
     // Square faces: both fits find the true corner.
     const PoseError s_sim = pose_error(s.sim, T_true), s_dat = pose_error(s.dat, T_true);
-    std::printf("square corner: pose error %.4f mm %.5f deg (datums), %.4f mm %.5f deg (simultaneous)\n",
+    partloc::test::note("square corner: pose error %.4f mm %.5f deg (datums), %.4f mm %.5f deg (simultaneous)\n",
                 s_dat.translation, s_dat.rotation_deg, s_sim.translation, s_sim.rotation_deg);
     EXPECT_LT(s_dat.translation, 0.01);
     EXPECT_LT(s_dat.rotation_deg, 0.01);
@@ -235,7 +236,7 @@ TEST(DatumFit, HonoursThePrimaryWhereTheSimultaneousFitSplitsTheDifference) {
     const double z_sim = angle_deg(t.sim.linear().col(2), s.sim.linear().col(2));
     const PoseError t_sim = pose_error(t.sim, T_true), t_dat = pose_error(t.dat, T_true);
     const Eigen::Vector3d nA = plane_normal(cc.a, T_true.linear().col(2));
-    std::printf(
+    partloc::test::note(
         "tertiary tilted %.1f deg: primary axis moved %.6f deg (datums) vs %.5f deg (simultaneous); "
         "secondary axis %.6f deg (datums); primary axis to the primary's own plane %.5f deg (datums) vs "
         "%.5f deg (simultaneous); pose error %.4f mm %.5f deg (datums) vs %.4f mm %.5f deg "
@@ -243,7 +244,7 @@ TEST(DatumFit, HonoursThePrimaryWhereTheSimultaneousFitSplitsTheDifference) {
         tilt, z_dat, z_sim, y_dat, angle_deg(t.dat.linear().col(2), nA), angle_deg(t.sim.linear().col(2), nA),
         t_dat.translation, t_dat.rotation_deg, t_sim.translation, t_sim.rotation_deg);
     for (const auto& d : t.datum_fit.datums)
-        std::printf("  datum %s: %zu points, rmse %.4f mm, %d dof, conditioning %.3f\n", d.name.c_str(),
+        partloc::test::note("  datum %s: %zu points, rmse %.4f mm, %d dof, conditioning %.3f\n", d.name.c_str(),
                     d.points, d.rmse, d.dof, d.conditioning);
     EXPECT_LT(z_dat, 0.001);
     EXPECT_LT(y_dat, 0.001);
@@ -270,9 +271,9 @@ TEST(DatumFit, HonoursThePrimaryWhereTheSimultaneousFitSplitsTheDifference) {
     EXPECT_GT(r[2].rmse, 1.4 * sigma);
 
     // The residuals at the simultaneous pose, per datum: the primary pays for the compromise.
-    const auto at_sim = evaluate_datums(cc.all, datums, t.sim_fit.T_correction, dst);
+    const auto at_sim = evaluate_datums(cc.all, datums, t.sim_fit.T_located_nominal, dst);
     ASSERT_EQ(at_sim.size(), 3u);
-    std::printf("  at the simultaneous pose: rmse A %.4f B %.4f C %.4f mm\n", at_sim[0].rmse, at_sim[1].rmse,
+    partloc::test::note("  at the simultaneous pose: rmse A %.4f B %.4f C %.4f mm\n", at_sim[0].rmse, at_sim[1].rmse,
                 at_sim[2].rmse);
     EXPECT_GT(at_sim[0].rmse, r[0].rmse);
     EXPECT_LT(at_sim[2].rmse, r[2].rmse);
@@ -303,8 +304,8 @@ TEST(DatumFit, CovarianceMatchesTheScatterOfRepeatedFits) {
         const Eigen::Isometry3d start =
             T_true * N.inverse() * pose_from_origin_euler({0.05, -0.03, 0.02}, {0.02, 0.01, -0.02});
         const DatumFit f = fit_datums(cc.all, datums, start, st);
-        ASSERT_TRUE(f.ok) << f.reason;
-        const Eigen::Isometry3d X = f.T_correction.inverse() * T_true_ts.inverse();
+        ASSERT_TRUE(f.valid) << f.reason;
+        const Eigen::Isometry3d X = f.T_located_nominal.inverse() * T_true_ts.inverse();
         const Eigen::AngleAxisd aa(X.linear());
         Vector6d delta;
         delta << aa.angle() * aa.axis(), X.translation();
@@ -314,7 +315,7 @@ TEST(DatumFit, CovarianceMatchesTheScatterOfRepeatedFits) {
         sum_pred_t2 += cov.bottomRightCorner<3, 3>().trace();
     }
     const double mean_d2 = sum_d2 / trials;
-    std::printf(
+    partloc::test::note(
         "datum fit over %d noisy corners: mean squared Mahalanobis error %.2f (6 if the covariance is "
         "honest); rms twist translation %.5f mm, predicted %.5f mm\n",
         trials, mean_d2, std::sqrt(sum_t2 / trials), std::sqrt(sum_pred_t2 / trials));
@@ -335,11 +336,11 @@ TEST(DatumFit, TooFewPointsOrNoDatumsIsAReason) {
     DatumFitSettings st;
     st.noise = 0.05;
     const DatumFit f = fit_datums(floor_only, datums, Eigen::Isometry3d::Identity(), st);
-    EXPECT_FALSE(f.ok);
+    EXPECT_FALSE(f.valid);
     EXPECT_NE(f.reason.find("datum B: only 0 points"), std::string::npos) << f.reason;
     datums.pop_back();
     const DatumFit g = fit_datums(floor_only, datums, Eigen::Isometry3d::Identity(), st);
-    EXPECT_FALSE(g.ok);
+    EXPECT_FALSE(g.valid);
     EXPECT_NE(g.reason.find("needs three datums"), std::string::npos) << g.reason;
 }
 
@@ -424,18 +425,18 @@ TEST_P(DatumCell, BothFitsLocateTheTrueCornerFromTrulyRegisteredScans) {
     ws.noise = noise;
     ws.spacing = spacing;
     const WorkpieceFit sim = fit_reference_surfaces(merged, reference, ws);
-    ASSERT_TRUE(sim.ok) << sim.reason;
+    ASSERT_TRUE(sim.valid) << sim.reason;
     DatumFitSettings ds;
     ds.noise = noise;
     ds.spacing = spacing;
-    const DatumFit dat = fit_datums(merged, datums, sim.T_correction, ds);
-    ASSERT_TRUE(dat.ok) << dat.reason;
+    const DatumFit dat = fit_datums(merged, datums, sim.T_located_nominal, ds);
+    ASSERT_TRUE(dat.valid) << dat.reason;
     const Eigen::Isometry3d& N = sj.job.workpiece.T_machine_workpiece;
-    const PoseError e_sim = pose_error(sim.T_correction * N, sj.truth.T_machine_workpiece);
-    const PoseError e_dat = pose_error(dat.T_correction * N, sj.truth.T_machine_workpiece);
+    const PoseError e_sim = pose_error(sim.T_located_nominal * N, sj.truth.T_machine_workpiece);
+    const PoseError e_dat = pose_error(dat.T_located_nominal * N, sj.truth.T_machine_workpiece);
     const PoseError nominal = pose_error(N, sj.truth.T_machine_workpiece);
     // One-sigma origin uncertainty of the datum fit from its covariance (noise^2 times the unit one). The
-    // covariance is of a twist [w, v] of T_correction^-1 about the machine origin, which moves the located
+    // covariance is of a twist [w, v] of T_located_nominal^-1 about the machine origin, which moves the located
     // corner by -R (w x n + v), n the nominal corner: |.|^2 does not depend on R.
     const Eigen::Vector3d n = N.translation();
     Eigen::Matrix3d n_cross;
@@ -443,14 +444,14 @@ TEST_P(DatumCell, BothFitsLocateTheTrueCornerFromTrulyRegisteredScans) {
     Eigen::Matrix<double, 3, 6> Jo;
     Jo << -n_cross, Eigen::Matrix3d::Identity();
     const Eigen::Matrix3d cov_o = noise * noise * Jo * dat.covariance * Jo.transpose();
-    std::printf(
+    partloc::test::note(
         "%s (seed %d): %zu merged points, nominal off by %.3f mm %.3f deg; simultaneous error %.4f mm "
         "%.5f deg; datums error %.4f mm %.5f deg (1-sigma origin bound %.4f mm)\n",
         sj.truth.scenario.c_str(), seed, merged.size(), nominal.translation, nominal.rotation_deg,
         e_sim.translation, e_sim.rotation_deg, e_dat.translation, e_dat.rotation_deg,
         std::sqrt(cov_o.trace()));
     for (const auto& d : dat.datums)
-        std::printf("  datum %s: %zu points, rmse %.4f mm, conditioning %.3f\n", d.name.c_str(), d.points,
+        partloc::test::note("  datum %s: %zu points, rmse %.4f mm, conditioning %.3f\n", d.name.c_str(), d.points,
                     d.rmse, d.conditioning);
     EXPECT_LT(e_dat.translation, 0.05);
     EXPECT_LT(e_dat.rotation_deg, 0.03);
@@ -562,7 +563,7 @@ TEST(DatumJob, RunLocatesByTheDatumsAndReportsEach) {
         for (int c = 0; c < 4; ++c)
             located.matrix()(r, c) = j["workpiece"]["T_machine_workpiece"][r][c].get<double>();
     const PoseError e = pose_error(located, sj.truth.T_machine_workpiece);
-    std::printf("partloc run with datums, random cell 12: origin error %.4f mm, rotation error %.5f deg\n",
+    partloc::test::note("partloc run with datums, random cell 12: origin error %.4f mm, rotation error %.5f deg\n",
                 e.translation, e.rotation_deg);
     EXPECT_LT(e.translation, 0.1);
     EXPECT_LT(e.rotation_deg, 0.05);
@@ -580,14 +581,14 @@ TEST(LoneScan, ThePartDisownsAScanThatShowsItOffNotOneThatSlidesAlongItsOnlyFace
     const Eigen::Isometry3d& T_true = cs.T_true;
     const WorkpieceFitSettings& ws = cs.ws;
     const WorkpieceFit located = fit_reference_surfaces(cc.all, reference, ws);
-    ASSERT_TRUE(located.ok) << located.reason;
+    ASSERT_TRUE(located.valid) << located.reason;
     const auto moved = [&](std::vector<Eigen::Vector3d> pts, const Eigen::Vector3d& along_part) {
         for (auto& p : pts) p += T_true.linear() * along_part;
         return pts;
     };
     const auto disowned = [&](const std::vector<Eigen::Vector3d>& pts, const WorkpieceFit& at) {
         const std::string why = part_disowns_scan(pts, nullptr, at, reference, ws);
-        std::printf("  %s\n", why.empty() ? "confirmed" : why.c_str());
+        partloc::test::note("  %s\n", why.empty() ? "confirmed" : why.c_str());
         return why;
     };
     // Registered right: confirmed, the corner and the floor alone.

@@ -727,11 +727,10 @@ Job small_job() {
 
 JobResult located_result(const Job& job) {
     JobResult r;
-    r.located = true;
     r.units = job.units;
     ScanResult good;
     good.file = job.scans[0].file;
-    good.registered = true;
+    good.valid = true;
     good.fiducials = {"A<&>"};
     good.score = 5.1;
     good.rmse = 0.12;
@@ -741,19 +740,19 @@ JobResult located_result(const Job& job) {
     good.noise = 0.13;
     FiducialFit fit;
     fit.fiducial = "A<&>";
-    fit.accepted = true;
+    fit.valid = true;
     fit.score = 5.1;
     fit.coverage = 0.8;
     fit.inliers = 900;
     good.fits.push_back(fit);
     ScanResult bad;
     bad.file = job.scans[1].file;
-    bad.message = "no fiducial fits: A: coverage 0.02 < 0.3 [\"seen\"  2, of 9]";
+    bad.reason = "no fiducial fits: A: coverage 0.02 < 0.3 [\"seen\"  2, of 9]";
     bad.fits.push_back(fit);
-    bad.fits.back().accepted = false;
+    bad.fits.back().valid = false;
     bad.fits.back().reason = "coverage 0.02 < 0.3";
     r.scans = {good, bad};
-    r.workpiece.located = true;
+    r.workpiece.valid = true;
     r.workpiece.T_machine_workpiece = pose_from_origin_euler({-76.3, -12.9, 20.5}, {0.5, -0.1, -179.5});
     r.workpiece.rmse = 0.09;
     r.workpiece.points = 183422;
@@ -841,7 +840,7 @@ TEST(Outputs, NotLocatedStillWritesResultJsonAndClearsOldModels) {
 
     JobResult r;
     r.units = "mm";
-    r.workpiece.message = "no scan could be registered to the machine";
+    r.workpiece.reason = "no scan could be registered to the machine";
     write_outputs(dir / "out", job, r);
     const auto j = nlohmann::json::parse(slurp(dir / "out/result.json"));
     EXPECT_EQ(j.at("status"), "not_located");

@@ -328,12 +328,12 @@ TEST_F(ModelCacheTest, AJobFromTheCacheGivesTheSameBits) {
     for (int i = 1; i < 3; ++i) {
         ASSERT_EQ(r[i].scans.size(), r[0].scans.size());
         for (std::size_t s = 0; s < r[0].scans.size(); ++s) {
-            EXPECT_EQ(r[i].scans[s].registered, r[0].scans[s].registered);
-            EXPECT_EQ(r[i].scans[s].message, r[0].scans[s].message);
+            EXPECT_EQ(r[i].scans[s].valid, r[0].scans[s].valid);
+            EXPECT_EQ(r[i].scans[s].reason, r[0].scans[s].reason);
             EXPECT_TRUE(r[i].scans[s].T_machine_scan.matrix() == r[0].scans[s].T_machine_scan.matrix());
-            registered += r[i].scans[s].registered;
+            registered += r[i].scans[s].valid;
         }
-        ASSERT_TRUE(r[i].located && r[0].located);
+        ASSERT_TRUE(r[i].workpiece.valid && r[0].workpiece.valid);
         EXPECT_TRUE(r[i].workpiece.T_machine_workpiece.matrix() ==
                     r[0].workpiece.T_machine_workpiece.matrix());
         ASSERT_TRUE(r[i].merged && r[0].merged);

@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <random>
 
+#include "test_note.hpp"
 #include "partloc/core/icp.hpp"
 #include "partloc/pipeline/run.hpp"
 #include "partloc/sim/scenario.hpp"
@@ -27,36 +28,36 @@ void check_job(const sim::SimulatedJob& sj, double max_origin_mm, double max_rot
     for (std::size_t i = 0; i < result.scans.size(); ++i) {
         const auto& r = result.scans[i];
         const auto& t = sj.truth.scans[i];
-        SCOPED_TRACE(r.file + ": " + r.message);
+        SCOPED_TRACE(r.file + ": " + r.reason);
         std::size_t seen = 0;
         for (const auto& [name, n] : t.fiducial_points) seen = std::max(seen, n);
-        if (seen >= kSeenPoints) EXPECT_TRUE(r.registered) << "a scan that sees a fiducial must be registered";
+        if (seen >= kSeenPoints) EXPECT_TRUE(r.valid) << "a scan that sees a fiducial must be registered";
         for (const auto& f : r.fits) {
             const Eigen::Isometry3d Tf = sj.truth.T_machine_fiducial.at(f.fiducial);
             const Eigen::Isometry3d E = t.T_machine_scan * f.T_scan_fiducial * Tf.inverse();
             const Eigen::Isometry3d W = t.T_machine_scan * f.T_scan_fiducial;
             const Eigen::Vector3d ts = (t.T_machine_scan.inverse() * Tf).translation();
-            std::printf("    true in scan at %.1f %.1f %.1f\n", ts.x(), ts.y(), ts.z());
-            std::printf("    placed at machine %.1f %.1f %.1f, fiducial z axis -> %.2f %.2f %.2f; true at %.1f %.1f %.1f\n",
+            partloc::test::note("    true in scan at %.1f %.1f %.1f\n", ts.x(), ts.y(), ts.z());
+            partloc::test::note("    placed at machine %.1f %.1f %.1f, fiducial z axis -> %.2f %.2f %.2f; true at %.1f %.1f %.1f\n",
                         W.translation().x(), W.translation().y(), W.translation().z(), W.linear()(0, 2), W.linear()(1, 2),
                         W.linear()(2, 2), Tf.translation().x(), Tf.translation().y(), Tf.translation().z());
-            std::printf("  %s %s seen %zu: %s err %.2f deg %.2f mm inl %zu cov %.2f viol %.3f cond %.4f rmse %.3f %s\n",
+            partloc::test::note("  %s %s seen %zu: %s err %.2f deg %.2f mm inl %zu cov %.2f viol %.3f cond %.4f rmse %.3f %s\n",
                         r.file.c_str(), f.fiducial.c_str(), t.fiducial_points.count(f.fiducial) ? t.fiducial_points.at(f.fiducial) : 0,
-                        f.accepted ? "ACC" : "rej", rotation_angle_deg(E.linear()), E.translation().norm(), f.inliers,
+                        f.valid ? "ACC" : "rej", rotation_angle_deg(E.linear()), E.translation().norm(), f.inliers,
                         f.coverage, f.violation, f.conditioning, f.rmse, f.reason.c_str());
         }
         const Eigen::Vector3d tt = t.T_machine_scan.translation();
-        std::printf("  %s: %s true T %.1f %.1f %.1f\n", r.file.c_str(), r.registered ? "REGISTERED" : r.message.c_str(), tt.x(), tt.y(), tt.z());
-        if (!r.registered) continue;
+        partloc::test::note("  %s: %s true T %.1f %.1f %.1f\n", r.file.c_str(), r.valid ? "REGISTERED" : r.reason.c_str(), tt.x(), tt.y(), tt.z());
+        if (!r.valid) continue;
         // Registered means registered right: compare at the workpiece's datum (where it matters).
         const Eigen::Vector3d at = sj.truth.T_machine_workpiece.translation();
         const Eigen::Isometry3d D = r.T_machine_scan * t.T_machine_scan.inverse();
         EXPECT_LT((D * at - at).norm(), 0.5) << "scan registered wrongly";
         EXPECT_LT(rotation_angle_deg(D.linear()), 0.2) << "scan registered wrongly";
     }
-    ASSERT_TRUE(result.located) << result.workpiece.message;
+    ASSERT_TRUE(result.workpiece.valid) << result.workpiece.reason;
     const PoseError e = pose_error(result.workpiece.T_machine_workpiece, sj.truth.T_machine_workpiece);
-    std::printf("%s seed %llu: origin error %.4f mm, rotation error %.4f deg, %zu points, rmse %.4f mm, %.1f s\n",
+    partloc::test::note("%s seed %llu: origin error %.4f mm, rotation error %.4f deg, %zu points, rmse %.4f mm, %.1f s\n",
                 sj.truth.scenario.c_str(), static_cast<unsigned long long>(sj.truth.seed), e.translation,
                 e.rotation_deg, result.workpiece.points, result.workpiece.rmse, result.seconds);
     EXPECT_LT(e.translation, max_origin_mm);
@@ -105,9 +106,9 @@ DisturbedRun run_disturbed(std::uint64_t seed) {
     RunSettings rs;
     rs.build_stock = false;
     DisturbedRun d{run_job(sj.job, rs), {}};
-    EXPECT_TRUE(d.result.located) << d.result.workpiece.message;
-    if (d.result.located) d.error = pose_error(d.result.workpiece.T_machine_workpiece, sj.truth.T_machine_workpiece);
-    std::printf("seed %d: %.4f mm %.4f deg off\n", static_cast<int>(seed), d.error.translation, d.error.rotation_deg);
+    EXPECT_TRUE(d.result.workpiece.valid) << d.result.workpiece.reason;
+    if (d.result.workpiece.valid) d.error = pose_error(d.result.workpiece.T_machine_workpiece, sj.truth.T_machine_workpiece);
+    partloc::test::note("seed %d: %.4f mm %.4f deg off\n", static_cast<int>(seed), d.error.translation, d.error.rotation_deg);
     return d;
 }
 }  // namespace
@@ -119,7 +120,7 @@ DisturbedRun run_disturbed(std::uint64_t seed) {
 TEST(PartFit, AWideFirstStageThatSlidesOffDoesNotWin) {
     open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
     const DisturbedRun d = run_disturbed(1150);
-    ASSERT_TRUE(d.result.located);
+    ASSERT_TRUE(d.result.workpiece.valid);
     EXPECT_LT(d.error.translation, 0.05);
     EXPECT_LT(d.error.rotation_deg, 0.05);
 }
@@ -131,14 +132,14 @@ TEST(PartFit, AWideFirstStageThatSlidesOffDoesNotWin) {
 TEST(PartFit, AScanWhoseRegistrationIsFarLessCertainIsLeftOutOfIt) {
     open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
     const DisturbedRun d = run_disturbed(1143);
-    ASSERT_TRUE(d.result.located);
+    ASSERT_TRUE(d.result.workpiece.valid);
     int left_out = 0;
     for (const auto& r : d.result.scans) {
         for (const auto& w : r.warnings) {
             if (w.find("left out of the part's fit") == std::string::npos) continue;
             ++left_out;
-            std::printf("  %s: %s\n", r.file.c_str(), w.c_str());
-            EXPECT_TRUE(r.registered);
+            partloc::test::note("  %s: %s\n", r.file.c_str(), w.c_str());
+            EXPECT_TRUE(r.valid);
         }
     }
     EXPECT_EQ(left_out, 1);
@@ -157,7 +158,7 @@ TEST(PartFit, AScanLeftOutOfTheFitIsStillInMergedAndTheStock) {
     RunSettings rs;
     rs.build_stock = true;
     const JobResult all = run_job(sj.job, rs);
-    ASSERT_TRUE(all.located) << all.workpiece.message;
+    ASSERT_TRUE(all.workpiece.valid) << all.workpiece.reason;
     std::size_t left_out = all.scans.size();
     for (std::size_t i = 0; i < all.scans.size(); ++i)
         for (const auto& w : all.scans[i].warnings)
@@ -167,8 +168,8 @@ TEST(PartFit, AScanLeftOutOfTheFitIsStillInMergedAndTheStock) {
     EXPECT_GT(all.stock->triangles_.size(), 1000u);
     sj.job.scans.erase(sj.job.scans.begin() + static_cast<std::ptrdiff_t>(left_out));
     const JobResult rest = run_job(sj.job, rs);
-    ASSERT_TRUE(rest.located && rest.merged);
-    std::printf("merged.ply: %zu points with scan %zu, %zu without\n", all.merged->points_.size(), left_out,
+    ASSERT_TRUE(rest.workpiece.valid && rest.merged);
+    partloc::test::note("merged.ply: %zu points with scan %zu, %zu without\n", all.merged->points_.size(), left_out,
                 rest.merged->points_.size());
     EXPECT_NE(all.merged->points_, rest.merged->points_);
 }
@@ -194,11 +195,11 @@ TEST(MovedFiducial, IsNamedAndNoScanIsRegisteredWrongly) {
     int named = 0, registered = 0;
     for (std::size_t i = 0; i < result.scans.size(); ++i) {
         const auto& r = result.scans[i];
-        std::string said = r.message;
+        std::string said = r.reason;
         for (const auto& w : r.warnings) said += " " + w;
-        std::printf("  %s: %s | %s\n", r.file.c_str(), r.registered ? "registered" : "rejected", said.c_str());
+        partloc::test::note("  %s: %s | %s\n", r.file.c_str(), r.valid ? "registered" : "rejected", said.c_str());
         if (said.find("C ") != std::string::npos || said.find(" C") != std::string::npos) ++named;
-        if (!r.registered) continue;
+        if (!r.valid) continue;
         ++registered;
         // Registered means registered right, and not by the moved fiducial.
         const Eigen::Isometry3d D = r.T_machine_scan * sj.truth.scans[i].T_machine_scan.inverse();
@@ -207,7 +208,7 @@ TEST(MovedFiducial, IsNamedAndNoScanIsRegisteredWrongly) {
     }
     EXPECT_GT(named, 0) << "no scan names the moved fiducial";
     EXPECT_GE(registered, 1);  // safety over recall: scans that cannot tell which fiducial moved are rejected
-    ASSERT_TRUE(result.located) << result.workpiece.message;
+    ASSERT_TRUE(result.workpiece.valid) << result.workpiece.reason;
     EXPECT_LT(pose_error(result.workpiece.T_machine_workpiece, sj.truth.T_machine_workpiece).translation, 0.05);
 }
 
@@ -245,20 +246,20 @@ TEST(LoneFiducialMoved, ScanItAlonePlacesIsRejected) {
     for (const auto& r : result.scans) {
         std::string fids;
         for (const auto& f : r.fiducials) fids += " " + f;
-        std::printf("  %s: %s%s | %s\n", r.file.c_str(), r.registered ? "registered by" : "rejected", fids.c_str(),
-                    r.message.c_str());
+        partloc::test::note("  %s: %s%s | %s\n", r.file.c_str(), r.valid ? "registered by" : "rejected", fids.c_str(),
+                    r.reason.c_str());
     }
     const auto& r0 = result.scans[0];
-    EXPECT_FALSE(r0.registered) << "scan 0 registered by the knocked fiducial alone";
-    EXPECT_NE(r0.message.find("A moved"), std::string::npos) << r0.message;
+    EXPECT_FALSE(r0.valid) << "scan 0 registered by the knocked fiducial alone";
+    EXPECT_NE(r0.reason.find("A moved"), std::string::npos) << r0.reason;
     const Eigen::Vector3d at = sj.truth.T_machine_workpiece.translation();
     for (std::size_t i = 0; i < result.scans.size(); ++i) {
         const auto& r = result.scans[i];
-        if (!r.registered) continue;
+        if (!r.valid) continue;
         const Eigen::Isometry3d D = r.T_machine_scan * sj.truth.scans[i].T_machine_scan.inverse();
         EXPECT_LT((D * at - at).norm(), 0.1) << r.file;
     }
-    ASSERT_TRUE(result.located) << result.workpiece.message;
+    ASSERT_TRUE(result.workpiece.valid) << result.workpiece.reason;
     EXPECT_LT(pose_error(result.workpiece.T_machine_workpiece, sj.truth.T_machine_workpiece).translation, 0.05);
 }
 
@@ -279,15 +280,15 @@ void check_lone_scan_with_a_mirrored(sim::SimulatedJob sj, std::size_t scan,
     const JobResult result = run_job(sj.job, rs);
     ASSERT_EQ(result.scans.size(), 1u);
     const auto& r0 = result.scans[0];
-    std::printf("  %s: %s | %s\n", r0.file.c_str(), r0.registered ? "registered" : "rejected", r0.message.c_str());
-    if (r0.registered) {
+    partloc::test::note("  %s: %s | %s\n", r0.file.c_str(), r0.valid ? "registered" : "rejected", r0.reason.c_str());
+    if (r0.valid) {
         const Eigen::Vector3d at = sj.truth.T_machine_workpiece.translation();
         const Eigen::Isometry3d D = r0.T_machine_scan * sj.truth.scans[scan].T_machine_scan.inverse();
         EXPECT_LT((D * at - at).norm(), 0.1) << "registered wrongly by " << r0.fiducials.front();
     } else {
-        EXPECT_NE(r0.message.find(reason), std::string::npos) << r0.message;
+        EXPECT_NE(r0.reason.find(reason), std::string::npos) << r0.reason;
     }
-    EXPECT_FALSE(result.located && pose_error(result.workpiece.T_machine_workpiece, sj.truth.T_machine_workpiece).translation > 0.1);
+    EXPECT_FALSE(result.workpiece.valid && pose_error(result.workpiece.T_machine_workpiece, sj.truth.T_machine_workpiece).translation > 0.1);
 }
 }  // namespace
 
@@ -341,13 +342,13 @@ TEST(Threads, OneAndTwoThreadsGiveTheSameBits) {
     ASSERT_EQ(r[0].scans.size(), r[1].scans.size());
     int registered = 0;
     for (std::size_t i = 0; i < r[0].scans.size(); ++i) {
-        EXPECT_EQ(r[0].scans[i].registered, r[1].scans[i].registered);
-        EXPECT_EQ(r[0].scans[i].message, r[1].scans[i].message);
+        EXPECT_EQ(r[0].scans[i].valid, r[1].scans[i].valid);
+        EXPECT_EQ(r[0].scans[i].reason, r[1].scans[i].reason);
         EXPECT_TRUE(r[0].scans[i].T_machine_scan.matrix() == r[1].scans[i].T_machine_scan.matrix()) << "scan " << i;
-        registered += r[0].scans[i].registered;
+        registered += r[0].scans[i].valid;
     }
     EXPECT_GE(registered, 1);
-    ASSERT_TRUE(r[0].located);
+    ASSERT_TRUE(r[0].workpiece.valid);
     EXPECT_TRUE(r[0].workpiece.T_machine_workpiece.matrix() == r[1].workpiece.T_machine_workpiece.matrix());
     ASSERT_TRUE(r[0].merged && r[1].merged);
     EXPECT_EQ(r[0].merged->points_, r[1].merged->points_);
@@ -368,7 +369,7 @@ TEST(SkippedSearches, PlaceTheScansAsSearchingEveryFiducialDoes) {
     for (int every : {0, 1}) {
         RunSettings rs;
         rs.build_stock = false;
-        rs.search_every_fiducial = every;
+        rs.config.registration.search_every_fiducial = every;
         r[every] = run_job(sj.job, rs);
     }
     ASSERT_EQ(r[0].scans.size(), r[1].scans.size());
@@ -377,16 +378,16 @@ TEST(SkippedSearches, PlaceTheScansAsSearchingEveryFiducialDoes) {
     for (std::size_t i = 0; i < r[0].scans.size(); ++i) {
         const ScanResult& lazy = r[0].scans[i];
         const ScanResult& every = r[1].scans[i];
-        SCOPED_TRACE(lazy.file + ": " + lazy.message + " / " + every.message);
-        EXPECT_EQ(lazy.registered, every.registered);
+        SCOPED_TRACE(lazy.file + ": " + lazy.reason + " / " + every.reason);
+        EXPECT_EQ(lazy.valid, every.valid);
         for (const auto& f : every.fits) EXPECT_TRUE(f.searched) << f.fiducial;
         for (const auto& f : lazy.fits) {
             if (f.searched) continue;
             ++skipped;
             // Not searched: judged where the first fiducial put the scanner, which is right; one it does not
             // pass there shows nothing there (out of view or hidden).
-            ASSERT_TRUE(lazy.registered);
-            if (!f.accepted) {
+            ASSERT_TRUE(lazy.valid);
+            if (!f.valid) {
                 ++unseen;
                 EXPECT_LT(f.inliers, 100u) << f.reason;
                 const auto& seen = sj.truth.scans[i].fiducial_points;
@@ -398,18 +399,18 @@ TEST(SkippedSearches, PlaceTheScansAsSearchingEveryFiducialDoes) {
             EXPECT_LT(e.translation, 0.1);
             EXPECT_LT(e.rotation_deg, 0.1);
         }
-        if (!lazy.registered || !every.registered) continue;
+        if (!lazy.valid || !every.valid) continue;
         ++registered;
         EXPECT_EQ(lazy.fiducials, every.fiducials);
         const Eigen::Isometry3d D = lazy.T_machine_scan * every.T_machine_scan.inverse();
         EXPECT_LT((D * at - at).norm(), 0.005);
         EXPECT_LT(rotation_angle_deg(D.linear()), 0.005);
     }
-    std::printf("%d scans registered both ways; %d fiducial searches skipped, %d of them out of view\n",
+    partloc::test::note("%d scans registered both ways; %d fiducial searches skipped, %d of them out of view\n",
                 registered, skipped, unseen);
     EXPECT_GE(skipped, 1);
     EXPECT_GE(registered, 3);
-    ASSERT_TRUE(r[0].located && r[1].located);
+    ASSERT_TRUE(r[0].workpiece.valid && r[1].workpiece.valid);
     const PoseError e = pose_error(r[0].workpiece.T_machine_workpiece, r[1].workpiece.T_machine_workpiece);
     EXPECT_LT(e.translation, 0.005);
     EXPECT_LT(e.rotation_deg, 0.005);

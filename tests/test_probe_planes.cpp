@@ -12,6 +12,7 @@
 #include <random>
 #include <sstream>
 
+#include "test_note.hpp"
 #include "partloc/core/geometry.hpp"
 #include "partloc/core/probe_planes.hpp"
 #include "partloc/io/job_io.hpp"
@@ -69,7 +70,7 @@ TEST(ProbePlanes, ExactPointsGiveTheExactFrame) {
         const Eigen::Isometry3d T = random_pose(rng);
         const ProbedFrame f =
             frame_from_probe_planes(probe_corner(T, 3, 25.0, 0.0, rng));  // the paper: 3 each
-        ASSERT_TRUE(f.ok) << f.reason;
+        ASSERT_TRUE(f.valid) << f.reason;
         expect_same_pose(f.T, T, 1e-10);
         for (const auto& p : f.planes) EXPECT_LT(p.rms, 1e-10);
         EXPECT_LT(f.nonorthogonality_deg, 1e-9);
@@ -86,7 +87,7 @@ TEST(ProbePlanes, ProbingNoiseOfFiveMicronsMovesTheFrameLittle) {
     for (int trial = 0; trial < trials; ++trial) {
         const Eigen::Isometry3d T = random_pose(rng);
         const ProbedFrame f = frame_from_probe_planes(probe_corner(T, 8, 40.0, 0.005, rng));
-        ASSERT_TRUE(f.ok) << f.reason;
+        ASSERT_TRUE(f.valid) << f.reason;
         const PoseError e = pose_error(f.T, T);
         sum_t2 += e.translation * e.translation;
         sum_r2 += e.rotation_deg * e.rotation_deg;
@@ -95,7 +96,7 @@ TEST(ProbePlanes, ProbingNoiseOfFiveMicronsMovesTheFrameLittle) {
         for (const auto& p : f.planes) mean_rms += p.rms / (3.0 * trials);
     }
     const double rms_t = std::sqrt(sum_t2 / trials), rms_r = std::sqrt(sum_r2 / trials);
-    std::printf(
+    partloc::test::note(
         "probe noise 0.005 mm, 8 points per plane, %d poses: origin error rms %.5f worst %.5f mm, "
         "rotation error rms %.5f worst %.5f deg, mean plane rms %.5f mm\n",
         trials, rms_t, worst_t, rms_r, worst_r, mean_rms);
@@ -135,7 +136,7 @@ TEST(ProbePlanes, ConventionMatchesTheSimsModelFrames) {
                     planes[k].push_back(T_machine_block *
                                         (faces[k].origin + s(rng) * faces[k].u + s(rng) * faces[k].v));
             const ProbedFrame f = frame_from_probe_planes(planes);
-            ASSERT_TRUE(f.ok) << f.reason;
+            ASSERT_TRUE(f.valid) << f.reason;
             expect_same_pose(f.T, T_machine_frame, 1e-10);
         }
     }
@@ -147,7 +148,7 @@ TEST(ProbePlanes, BadProbingIsAReasonNamingThePlane) {
     const Planes good = probe_corner(T, 5, 30.0, 0.0, rng);
     const auto expect_reason = [](const Planes& p, int plane, const std::string& phrase) {
         const ProbedFrame f = frame_from_probe_planes(p);
-        EXPECT_FALSE(f.ok);
+        EXPECT_FALSE(f.valid);
         EXPECT_EQ(f.plane, plane) << f.reason;
         EXPECT_NE(f.reason.find(phrase), std::string::npos) << f.reason;
     };
@@ -249,7 +250,7 @@ TEST(ProbePlanesJob, FiducialAndDatumPosesFromProbedPoints) {
         };
         const PoseError ea = pose_error(back(job.fiducials[0].T_machine_fiducial), T_a);
         const PoseError ew = pose_error(back(job.workpiece.T_machine_workpiece), T_w);
-        std::printf(
+        partloc::test::note(
             "%s job: fiducial A from probe_planes off by %.5f mm, %.5f deg; datum by %.5f mm, %.5f deg\n",
             units, ea.translation, ea.rotation_deg, ew.translation, ew.rotation_deg);
         EXPECT_LT(ea.translation, 0.03);

@@ -10,6 +10,7 @@
 #include <map>
 #include <sstream>
 
+#include "test_note.hpp"
 #include "partloc/pipeline/run.hpp"
 
 using namespace partloc;
@@ -66,22 +67,22 @@ TEST(RealBunny, EveryScanLandsWhereBunConfSays) {
     const Eigen::Vector3d bunny_centre = mesh->GetAxisAlignedBoundingBox().GetCenter();
     for (std::size_t i = 0; i < files.size(); ++i) {
         const auto& r = result.scans[i];
-        SCOPED_TRACE(files[i] + " " + r.message);
+        SCOPED_TRACE(files[i] + " " + r.reason);
         const Eigen::Isometry3d& P = conf.at(files[i]);
         {
             const auto& f = r.fits[0];
             const Eigen::Isometry3d E = f.T_scan_fiducial * P;  // identity when the fit is right
-            std::printf("%s fit: err %.2f deg %.2f mm inl %zu cov %.2f viol %.3f cond %.4f rmse %.3f mm noise %.3f mm spacing %.3f\n",
+            partloc::test::note("%s fit: err %.2f deg %.2f mm inl %zu cov %.2f viol %.3f cond %.4f rmse %.3f mm noise %.3f mm spacing %.3f\n",
                         files[i].c_str(), rotation_angle_deg(E.linear()),
                         1000 * (E * bunny_centre - bunny_centre).norm(), f.inliers, f.coverage, f.violation,
                         f.conditioning, 1000 * f.rmse, 1000 * r.noise, 1000 * r.point_spacing);
         }
-        EXPECT_TRUE(r.registered);
-        if (!r.registered) continue;
+        EXPECT_TRUE(r.valid);
+        if (!r.valid) continue;
         const Eigen::Isometry3d D = r.T_machine_scan * P.inverse();  // identity when right
         EXPECT_LT(rotation_angle_deg(D.linear()), 1.0);
         EXPECT_LT((D * bunny_centre - bunny_centre).norm(), 0.002);
-        std::printf("%s: rotation %.3f deg, at bunny %.3f mm, rmse %.3f mm, coverage %.2f, %.1f s\n",
+        partloc::test::note("%s: rotation %.3f deg, at bunny %.3f mm, rmse %.3f mm, coverage %.2f, %.1f s\n",
                     files[i].c_str(), rotation_angle_deg(D.linear()), 1000 * (D * bunny_centre - bunny_centre).norm(),
                     1000 * r.rmse, r.fits[0].coverage, r.seconds);
     }

@@ -6,6 +6,7 @@
 
 #include <random>
 
+#include "test_note.hpp"
 #include "partloc/core/localize.hpp"
 #include "partloc/core/surface.hpp"
 #include "partloc/sim/shapes.hpp"
@@ -86,12 +87,12 @@ TEST(Localize, FindsTheBlockFromAnyPoseWithNoInitialGuess) {
         const FiducialFit fit = localize_model(ps, model, {});
         SCOPED_TRACE("trial " + std::to_string(trial) + ": " + fit.reason);
         // Seen from one side, a block may show only one or two faces; then it must say so, not guess.
-        if (!fit.accepted) {
+        if (!fit.valid) {
             EXPECT_FALSE(fit.reason.empty());
             continue;
         }
         const PoseError e = pose_error(fit.T_scan_fiducial, T);
-        std::printf("trial %d: %.4f mm %.4f deg, conditioning %.4f, %zu points\n", trial, e.translation,
+        partloc::test::note("trial %d: %.4f mm %.4f deg, conditioning %.4f, %zu points\n", trial, e.translation,
                     e.rotation_deg, fit.conditioning, fit.inliers);
         // Where the view fixes every direction well the fit is exact to the noise; where one direction is
         // held only by a narrow face (low conditioning) edge effects leave up to about 0.1 mm along it.
@@ -113,6 +114,6 @@ TEST(Localize, APlaneAloneIsNeverAFiducial) {
     ASSERT_GT(scan->points_.size(), 50000u);
     const PreparedScan ps = prepare_scan(*scan, {0.4, 0.05}, 3.0, Eigen::Vector3d::Zero());
     const FiducialFit fit = localize_model(ps, model, {});
-    EXPECT_FALSE(fit.accepted);
+    EXPECT_FALSE(fit.valid);
     EXPECT_FALSE(fit.reason.empty());
 }

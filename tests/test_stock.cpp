@@ -12,6 +12,7 @@
 #include <random>
 #include <vector>
 
+#include "test_note.hpp"
 #include "partloc/core/radius_grid.hpp"
 #include "partloc/core/stock.hpp"
 #include "partloc/core/surface.hpp"
@@ -164,7 +165,7 @@ TEST(Stock, BoxWithNoiseIsMeshedOnItsSurfaceFacingOut) {
     const auto d = vertex_distances(*m, [](const Eigen::Vector3d& p) { return box_distance(p, kLo, kHi); });
     const double med = quantile(d, 0.5), p95 = quantile(d, 0.95),
                  worst = *std::max_element(d.begin(), d.end());
-    std::printf("box: %zu triangles, vertex distance median %.4f p95 %.4f max %.4f mm\n",
+    partloc::test::note("box: %zu triangles, vertex distance median %.4f p95 %.4f max %.4f mm\n",
                 m->triangles_.size(), med, p95, worst);
     // Measured: median 0.0043, 95th percentile 0.038, max 0.24 mm for noise 0.03 mm; the tail is along the
     // edges and at the corners, which the cells (1.5 spacings) cut.
@@ -172,7 +173,7 @@ TEST(Stock, BoxWithNoiseIsMeshedOnItsSurfaceFacingOut) {
     EXPECT_LT(p95, 0.06);
     EXPECT_LT(worst, 0.35);
     const double outward = outward_fraction(*m, 0.5 * (kLo + kHi));
-    std::printf("box: %.4f of the triangles face out\n", outward);
+    partloc::test::note("box: %.4f of the triangles face out\n", outward);
     EXPECT_GT(outward, 0.99);  // measured: all
     // Held-out samples of the true surface (another draw, put back onto the box): within one voxel of it.
     const Cloud held = sample_box(kLo, kHi, 2);
@@ -183,7 +184,7 @@ TEST(Stock, BoxWithNoiseIsMeshedOnItsSurfaceFacingOut) {
     const double covered =
         static_cast<double>(std::count_if(back.begin(), back.end(), [](double x) { return x <= kSpacing; })) /
         back.size();
-    std::printf("box: %.4f of %zu true samples within one voxel of the stock\n", covered, back.size());
+    partloc::test::note("box: %.4f of %zu true samples within one voxel of the stock\n", covered, back.size());
     EXPECT_GT(covered, 0.99);  // measured: 1.0000
 }
 
@@ -200,13 +201,13 @@ TEST(Stock, FaceWithoutPointsStaysOpen) {
             v.x() > kLo.x() + 2.0 && v.x() < kHi.x() - 2.0 && v.y() > kLo.y() + 2.0 && v.y() < kHi.y() - 2.0;
         (inside ? across : rim) += 1;
     }
-    std::printf("open box: %zu vertices across the top, %zu along its rim\n", across, rim);
+    partloc::test::note("open box: %zu vertices across the top, %zu along its rim\n", across, rim);
     EXPECT_EQ(across, 0u);
     EXPECT_GT(rim, 100u);  // the walls reach up to the rim
     // Nor above it: the walls end about where their points do (measured: 0.10 mm below the rim).
     double top = -1e9;
     for (const auto& v : m->vertices_) top = std::max(top, v.z());
-    std::printf("open box: highest vertex %.3f mm above the rim\n", top - kHi.z());
+    partloc::test::note("open box: highest vertex %.3f mm above the rim\n", top - kHi.z());
     EXPECT_LT(top, kHi.z() + kSpacing);
     EXPECT_GT(top, kHi.z() - 2 * kSpacing);
     EXPECT_GT(outward_fraction(*m, 0.5 * (kLo + kHi)), 0.99);
@@ -221,13 +222,13 @@ TEST(Stock, CylinderWithNoiseIsMeshedOnItsSurfaceFacingOut) {
     const auto d =
         vertex_distances(*m, [&](const Eigen::Vector3d& p) { return cylinder_distance(p, r, height); });
     const double med = quantile(d, 0.5), p95 = quantile(d, 0.95);
-    std::printf("cylinder: %zu triangles, vertex distance median %.4f p95 %.4f mm\n", m->triangles_.size(),
+    partloc::test::note("cylinder: %zu triangles, vertex distance median %.4f p95 %.4f mm\n", m->triangles_.size(),
                 med, p95);
     // Measured: median 0.0094, 95th percentile 0.037 mm.
     EXPECT_LT(med, 0.015);
     EXPECT_LT(p95, 0.06);
     const double outward = outward_fraction(*m, Eigen::Vector3d(0, 0, 0.5 * height));
-    std::printf("cylinder: %.4f of the triangles face out\n", outward);
+    partloc::test::note("cylinder: %.4f of the triangles face out\n", outward);
     EXPECT_GT(outward, 0.99);
 }
 
@@ -305,7 +306,7 @@ TEST(Stock, SimulatedCellStockLiesOnTheTrueWorkpiece) {
     const double covered = static_cast<double>(std::count_if(back.begin(), back.end(),
                                                              [](double x) { return x <= 2 * 0.383; })) /
                            back.size();
-    std::printf(
+    partloc::test::note(
         "cell 3: %zu triangles; vertex distance to the true workpiece median %.4f p95 %.4f mm; %.4f facing "
         "its way; %.4f of %zu scanned samples covered\n",
         stock.triangles_.size(), med, p95, facing, covered, scanned.size());

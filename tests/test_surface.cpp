@@ -11,6 +11,7 @@
 #include <thread>
 #include <utility>
 
+#include "test_note.hpp"
 #include "partloc/core/cloud_stats.hpp"
 #include "partloc/core/geometry.hpp"
 #include "partloc/core/icp.hpp"
@@ -383,7 +384,7 @@ TEST(NearestCache, AnswersExactlyWhatTheSearchAnswersAsThePointsDrift) {
         int none[1];
         double none_d2[1];
         EXPECT_EQ(cache.nearest(0, pts[0], 0, 1.0, none, none_d2), 0);  // k = 0: nothing, as Surface::nearest
-        std::printf("NearestCache: %zu searches for %zu queries\n", cache.searches(), queries);
+        partloc::test::note("NearestCache: %zu searches for %zu queries\n", cache.searches(), queries);
         // The first query of each point searches; most later ones need not.
         EXPECT_GE(cache.searches(), pts.size());
         EXPECT_LT(cache.searches(), queries / 3);

@@ -53,7 +53,7 @@ Case three_scans() {
     c.in.reference = &c.reference;
     c.in.fit_distance = 0.5;
     c.in.noise = 0.01;
-    c.w.located = true;
+    c.w.valid = true;
     return c;
 }
 

@@ -57,16 +57,16 @@ void count_scans(const sim::SimulatedJob& sj, const JobResult& r, std::size_t re
     for (std::size_t i = 0; i < r.scans.size(); ++i) {
         if (i >= real_scans) {  // a trap: there is nothing to register it by
             ++c.traps;
-            if (r.scans[i].registered) {
+            if (r.scans[i].valid) {
                 ++c.traps_wrong;
                 std::printf("    TRAP REGISTERED: %s\n", r.scans[i].file.c_str());
             }
             continue;
         }
-        if (!r.scans[i].registered) {
+        if (!r.scans[i].valid) {
             if (bench::fiducial_in_view(sj, i)) {
                 ++c.missed;
-                ++c.missed_why[kind_of(r.scans[i].message)];
+                ++c.missed_why[kind_of(r.scans[i].reason)];
             } else {
                 ++c.none_in_view;
             }
@@ -146,7 +146,7 @@ int main(int argc, char** argv) {
         c.traps_wrong += sc.traps_wrong;
         for (const auto& [k, n] : sc.missed_why) c.missed_why[k] += n;
         std::printf("%4llu  ", static_cast<unsigned long long>(seed));
-        if (r.located) {
+        if (r.workpiece.valid) {
             ++located;
             const Eigen::Vector3d eo = r.workpiece.T_machine_workpiece.translation() - sj.truth.T_machine_workpiece.translation();
             const Eigen::Vector3d a = euler_xyz_deg(r.workpiece.T_machine_workpiece.linear());
@@ -175,10 +175,10 @@ int main(int argc, char** argv) {
                 }
             }
         } else {
-            std::printf("not located: %s", r.workpiece.message.c_str());
+            std::printf("not located: %s", r.workpiece.reason.c_str());
         }
         std::printf("  %6.1f\n", s);
-        if (r.located && r.workpiece.uncertainty.available) {
+        if (r.workpiece.valid && r.workpiece.uncertainty.available) {
             // The 1-sigma parts the half-widths come from, to calibrate how they combine.
             const auto& u = r.workpiece.uncertainty;
             std::printf("      sigma scans %.4f %.4f %.4f %.4f %.4f %.4f probing %.4f %.4f %.4f %.4f %.4f %.4f "

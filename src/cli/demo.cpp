@@ -74,11 +74,11 @@ int command_demo(const std::string& out_dir, std::uint64_t seed, int threads) {
             t0 = Clock::now();
             const JobResult result = run_job(s.job, settings);
             row.run_seconds = seconds_since(t0);
-            row.located = result.located && result.workpiece.located;
+            row.located = result.workpiece.valid;
             row.located_pose = result.workpiece.T_machine_workpiece;
-            row.message = result.workpiece.message;
+            row.message = result.workpiece.reason;
             for (std::size_t i = 0; i < result.scans.size() && i < s.truth.scans.size(); ++i) {
-                if (!result.scans[i].registered) continue;
+                if (!result.scans[i].valid) continue;
                 ++row.registered;
                 const PoseError e =
                     pose_error(result.scans[i].T_machine_scan, s.truth.scans[i].T_machine_scan);

@@ -49,18 +49,18 @@ void print_summary(std::ostream& out, const std::string& job_file, const Job& jo
         << " fiducials, units " << u << "\n";
     for (const ScanResult& s : result.scans) {
         out << "  " << s.file << "  ";
-        if (s.registered) {
+        if (s.valid) {
             std::string fids;
             for (const auto& f : s.fiducials) fids += (fids.empty() ? "" : ",") + f;
             out << "registered by " << fids << "  score " << fixed(s.score, 2) << "  rmse "
                 << fixed(s.rmse, d) << " " << u << "\n";
         } else {
-            out << "rejected: " << s.message << "\n";
+            out << "rejected: " << s.reason << "\n";
         }
     }
     const WorkpieceResult& w = result.workpiece;
-    if (!result.located) {
-        out << "workpiece: NOT LOCATED: " << w.message << "\n";
+    if (!result.workpiece.valid) {
+        out << "workpiece: NOT LOCATED: " << w.reason << "\n";
         return;
     }
     const Eigen::Isometry3d& nominal = job.workpiece.T_machine_workpiece;
@@ -130,7 +130,7 @@ int command_run(const std::string& job_file, const std::string& out_dir, int thr
     std::cout << "wrote";
     for (const auto& p : written) std::cout << " " << p.string();
     std::cout << std::endl;
-    return result.located ? kLocated : kNotLocated;
+    return result.workpiece.valid ? kLocated : kNotLocated;
 }
 
 }  // namespace partloc::cli

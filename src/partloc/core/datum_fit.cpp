@@ -185,17 +185,17 @@ std::vector<DatumResidual> residuals(const Systems& sys, const std::vector<Datum
 
 std::vector<DatumResidual> evaluate_datums(const std::vector<Eigen::Vector3d>& merged,
                                            const std::vector<DatumSurface>& datums,
-                                           const Eigen::Isometry3d& T_correction,
+                                           const Eigen::Isometry3d& T_located_nominal,
                                            const DatumFitSettings& st) {
     const Frame f = frame_of(datums);
-    return residuals(accumulate(merged, datums, T_correction.inverse(), last_distance(datums, st), false, f),
+    return residuals(accumulate(merged, datums, T_located_nominal.inverse(), last_distance(datums, st), false, f),
                      datums);
 }
 
 DatumFit fit_datums(const std::vector<Eigen::Vector3d>& merged, const std::vector<DatumSurface>& datums,
                     const Eigen::Isometry3d& T_correction_start, const DatumFitSettings& st) {
     DatumFit fit;
-    fit.T_correction = T_correction_start;
+    fit.T_located_nominal = T_correction_start;
     if (datums.size() != 3) {
         fit.reason = "the datum fit needs three datums (primary, secondary, tertiary), found " +
                      std::to_string(datums.size());
@@ -256,7 +256,7 @@ DatumFit fit_datums(const std::vector<Eigen::Vector3d>& merged, const std::vecto
 
     // The result at the last stage's distance: residuals (unweighted), and the covariance of the estimate.
     const Systems sys = accumulate(near, datums, T, fine, true, f);
-    fit.T_correction = T.inverse();
+    fit.T_located_nominal = T.inverse();
     fit.datums = residuals(sys, datums);
     h = hierarchy(sys, st.dof);
     double r2 = 0.0;
@@ -292,7 +292,7 @@ DatumFit fit_datums(const std::vector<Eigen::Vector3d>& merged, const std::vecto
     fit.information = fit.covariance.fullPivLu().inverse();
 
     fit.reason = unfixed(h, datums, st);
-    fit.ok = fit.reason.empty();
+    fit.valid = fit.reason.empty();
     return fit;
 }
 

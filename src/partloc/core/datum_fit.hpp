@@ -51,17 +51,17 @@ struct DatumResidual {
 };
 
 struct DatumFit {
-    bool ok = false;
-    std::string reason;  ///< why not, when !ok
-    /// Moves the nominal surfaces onto the measured ones: located = T_correction * nominal.
-    Eigen::Isometry3d T_correction = Eigen::Isometry3d::Identity();
+    bool valid = false;
+    std::string reason;  ///< why not, when not valid
+    /// Moves the nominal surfaces onto the measured ones: located = T_located_nominal * nominal.
+    Eigen::Isometry3d T_located_nominal = Eigen::Isometry3d::Identity();
     std::vector<DatumResidual> datums;  ///< in the order given
     bool converged = false;
     int iterations = 0;
     std::size_t inliers = 0;  ///< points on any datum
     double rmse = 0.0;        ///< over all of them (job units)
     /// Covariance of the hierarchical estimate for unit noise (multiply by noise^2), as a twist [w, v] of
-    /// T_correction^-1 (merged points -> nominal) about the machine origin, like IcpResult::JtJ; and its
+    /// T_located_nominal^-1 (merged points -> nominal) about the machine origin, like IcpResult::JtJ; and its
     /// inverse, the information for unit noise (comparable to IcpResult::JtJ).
     Matrix6d covariance = Matrix6d::Zero();
     Matrix6d information = Matrix6d::Zero();
@@ -73,10 +73,10 @@ struct DatumFit {
 DatumFit fit_datums(const std::vector<Eigen::Vector3d>& merged, const std::vector<DatumSurface>& datums,
                     const Eigen::Isometry3d& T_correction_start, const DatumFitSettings& settings);
 
-/// Each datum's points and residual at a given pose (for a simultaneous fit); T_correction as above.
+/// Each datum's points and residual at a given pose (for a simultaneous fit); T_located_nominal as above.
 std::vector<DatumResidual> evaluate_datums(const std::vector<Eigen::Vector3d>& merged,
                                            const std::vector<DatumSurface>& datums,
-                                           const Eigen::Isometry3d& T_correction,
+                                           const Eigen::Isometry3d& T_located_nominal,
                                            const DatumFitSettings& settings);
 
 }  // namespace partloc

@@ -2,6 +2,16 @@
 // Frames and transforms, written once (SPEC "Frames and units"):
 //   T_a_b maps coordinates in frame b to frame a:  p_a = T_a_b * p_b.
 //   Frames: machine, scan, fiducial, workpiece. Lengths in the job's units, angles in degrees.
+//   - machine: the machine's fixed frame. A body that no axis carries (a fixed fiducial) sits still in it;
+//     T_machine_scan maps a scan into it as it was while that scan was taken (at the scan's axis values).
+//   - machine0: the machine frame with every axis at its reference position (0). A body that axes carry is
+//     described there (SPEC "Machine axes"): T_machine0_scan = M(q)^-1 * T_machine_scan, where M(q) is the
+//     motion of the workpiece's axes at the scan's axis values q. The workpiece is reported in machine0.
+//   - nominal and located: the workpiece's reference surfaces as designed (at their nominal pose in
+//     machine0) and as the scans show them; T_located_nominal moves the first onto the second (the paper's R,
+//     Eq. 3), so that T_machine_workpiece = T_located_nominal * T_machine_workpiece_nominal.
+//   Information matrices: JtJ is the sum of J^T J over a fit's inliers, twist [w, v] (rotation first) in the
+//   frame the fit names; information = JtJ / noise^2, the inverse covariance of that twist.
 //   euler_xyz_deg [a, b, c] means R = Rz(c) * Ry(b) * Rx(a).
 #include <Eigen/Geometry>
 #include <string>

@@ -40,9 +40,7 @@ PreparedScan prepare_scan(const open3d::geometry::PointCloud& points, const Scal
     s.cloud = std::make_shared<open3d::geometry::PointCloud>();
     s.cloud->points_ = points.points_;
     // The grids answer balls of a fiducial's radius and two samplings more (about 14 samplings): cells of two
-    // samplings. Cells of one sampling took 85 ms to build and 89 ms to answer for seed 106's six scans,
-    // cells of two 34 and 61 ms, of four 32 and 51 ms (one thread, a scratch build's CPU timers); the same
-    // points.
+    // samplings were the fastest to build and to ask (docs/history.md).
     const double grid_cell = 2.0 * sampling;
     s.grid = std::make_shared<RadiusGrid>(s.cloud->points_, grid_cell);
     s.fit_normals = std::make_shared<PreparedScan::PointNormals>();
@@ -60,11 +58,8 @@ PreparedScan prepare_scan(const open3d::geometry::PointCloud& points, const Scal
         s.sparse_grid = s.grid;
     }
     // The global fit's points: one per cube of the sampling, each with the normal of the points within the
-    // cube of twice the sampling around it, from sums kept per cube (voxel_normals). Before, the scan was
-    // thinned to half the sampling, each of those points got a normal from its neighbours within 1.5 x the
-    // sampling (a neighbour search each), and the normals were averaged per cube of the sampling: 0.83 of
-    // 6.5 s CPU on seed 106, ten times voxel_normals' time (`partloc_bench normals`); and 569 scans right on
-    // seeds 2200-2299, against 585 now.
+    // cube of twice the sampling around it, from sums kept per cube (voxel_normals: a tenth of the time of a
+    // neighbour search per point, and more scans right; docs/history.md).
     OrientedSample coarse = voxel_normals(s.cloud->points_, sampling, s.viewpoint);
     s.coarse_points = std::move(coarse.points);
     s.coarse_normals = std::move(coarse.normals);
@@ -196,15 +191,6 @@ std::vector<Eigen::Vector3d> subsample(const std::vector<Eigen::Vector3d>& v, st
     return out;
 }
 
-/// Points around a candidate that its polish takes at most (before those far from the surface are dropped).
-constexpr std::size_t kPolishPoints = 8000;
-/// Points around a candidate that its screening fit and its fine fit take. The fine fit took 3000 before (the
-/// polish follows on the points near the surface, up to kPolishPoints); 1500, with the hypotheses' points
-/// halved too (run.cpp), took 5 % less time on seed 106 (one thread 6.38-6.52 s against 6.75-7.24 s). A
-/// screening on 1000 points instead of 1500 saved about as much again, but left a scan of seed 11
-/// unregistered (its right candidate ranked out of the three verified), and the PPF's features shared by more
-/// than 1.5 x the mean (ppf.hpp) lost 21 of 578 scans on seeds 2100-2199.
-constexpr std::size_t kScreenPoints = 1500, kFinePoints = 1500;
 
 FiducialFit judge(const PreparedModel& model, const Eigen::Isometry3d& T_scan_model, const Verification& v,
                   const Thresholds& t, const LocalizeSettings& st) {
@@ -239,7 +225,7 @@ FiducialFit judge(const PreparedModel& model, const Eigen::Isometry3d& T_scan_mo
                        100 * v.coverage, 100 * st.min_coverage);
     else if (v.rmse > st.max_rmse * t.vs.inlier_distance)
         f.reason = fmt("residual %.4g is above %.4g", v.rmse, st.max_rmse * t.vs.inlier_distance);
-    f.accepted = f.reason.empty();
+    f.valid = f.reason.empty();
     return f;
 }
 
@@ -291,12 +277,12 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
         // The points around the candidate, from the sparse copy unless that leaves fewer than the subsample.
         std::vector<Eigen::Vector3d> local = points_near(*scan.sparse, *scan.sparse_grid, c.centre, radius);
         std::size_t local_count = local.size() * scan.sparse_stride;
-        if (scan.sparse_stride > 1 && local.size() < kScreenPoints) {
+        if (scan.sparse_stride > 1 && local.size() < st.screen_points) {
             local = points_near(scan, c.centre, radius);
             local_count = local.size();
         }
         if (local_count < st.min_inliers) continue;
-        const auto sub = subsample(local, kScreenPoints);
+        const auto sub = subsample(local, st.screen_points);
         const IcpResult icp = icp_point_to_plane(sub, model.dense, T_sm.inverse(), coarse);
         c.T_model_scan = icp.T_target_source;
         // Candidates that the coarse fit brought to one pose are one candidate.
@@ -349,13 +335,13 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
         // Down to a quarter of the sampling on a subsample, then every point at the noise's scale: a face
         // seen with few points (a narrow wall) is what fixes some directions, and a subsample thins it.
         const IcpResult icp =
-            icp_point_to_plane(subsample(local_all, kFinePoints), model.dense, c.T_model_scan, fine);
+            icp_point_to_plane(subsample(local_all, st.fine_points), model.dense, c.T_model_scan, fine);
         // The polish sees only the points near the surface after the fine fit (the rest cannot become
         // correspondences within the polish distance unless the pose moves by more than the fit's step), of
-        // at most kPolishPoints around the candidate, taken by their order: it places one fiducial, which the
+        // at most st.polish_points around the candidate, taken by their order: it places one fiducial, which the
         // scan's joint fit then refines on every point, and all of them cost 6.5 of 20 s on six scans of 2 M
         // points (seed 106; 0.53 s at 250 k).
-        const auto near = points_near_surface(subsample(local_all, kPolishPoints), model.dense,
+        const auto near = points_near_surface(subsample(local_all, st.polish_points), model.dense,
                                               icp.T_target_source, 2.0 * polish.max_distances.back() + 0.1 * s);
         const IcpResult last = icp_point_to_plane(near, model.dense, icp.T_target_source, polish);
         const Eigen::Isometry3d T_ms = last.T_target_source;
@@ -367,7 +353,7 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
         fits.push_back(std::move(f));
     }
     std::stable_sort(fits.begin(), fits.end(), [](const FiducialFit& a, const FiducialFit& b) {
-        if (a.accepted != b.accepted) return a.accepted;
+        if (a.valid != b.valid) return a.valid;
         return support(a) > support(b);
     });
     return fits;
@@ -438,7 +424,7 @@ ScanPoseFit fit_scan_pose(const PreparedScan& scan, const std::vector<const Prep
     if (start_distance > start) is.max_distances.insert(is.max_distances.begin(), start_distance);
     const IcpResult icp = icp_point_to_plane(source, all, init, is, &source_normals);
     if (icp.inliers < st.min_inliers) return out;
-    out.ok = true;
+    out.valid = true;
     out.T_machine_scan = icp.T_target_source;
     out.JtJ = icp.JtJ;
     // Each fiducial's share, on its own points at the result (the same distance as the last stage).
@@ -454,7 +440,7 @@ ScanPoseFit fit_scan_pose(const PreparedScan& scan, const std::vector<const Prep
             J << p.cross(all.normals[k]), all.normals[k];
             H += J * J.transpose();
         }
-        out.JtJ_models.push_back(H);
+        out.JtJ_per_model.push_back(H);
         first += out.points[g];
     }
     out.rmse = icp.rmse;
@@ -471,14 +457,14 @@ FiducialFit localize_model(const PreparedScan& scan, const PreparedModel& model,
         return none;
     }
     FiducialFit best = fits.front();  // accepted ones first, then by support
-    if (!best.accepted) return best;
+    if (!best.valid) return best;
     for (std::size_t i = 1; i < fits.size(); ++i) {
         const auto& f = fits[i];
-        if (!f.accepted) continue;
+        if (!f.valid) continue;
         const PoseError e = pose_error(f.T_scan_fiducial, best.T_scan_fiducial);
         if ((e.translation > 2.0 * model.dense.spacing || e.rotation_deg > 2.0) &&
             support(f) >= st.ambiguity * support(best)) {
-            best.accepted = false;
+            best.valid = false;
             best.reason = fmt("ambiguous: two poses %.3g apart fit about equally well (%.0f%% of the support)",
                               e.translation, 100.0 * support(f) / support(best));
             break;

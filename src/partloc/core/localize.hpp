@@ -73,8 +73,8 @@ PreparedModel prepare_model(const std::string& name, const open3d::geometry::Tri
 /// The outcome of fitting one fiducial to one scan.
 struct FiducialFit {
     std::string fiducial;
-    bool accepted = false;
-    std::string reason;  ///< why it was not accepted; empty when accepted
+    bool valid = false;
+    std::string reason;  ///< why it is not valid; empty when valid
     Eigen::Isometry3d T_scan_fiducial = Eigen::Isometry3d::Identity();
     double rmse = 0.0;          ///< RMS point-to-surface distance of the inliers (job units)
     double coverage = 0.0;      ///< fraction of the model surface facing the scanner that was observed
@@ -105,6 +105,11 @@ struct LocalizeSettings {
     /// about 1/3 for Gaussian noise, 0.58 for residuals spread evenly, as a wrong fit's are.
     double max_rmse = 0.5;
     double ambiguity = 0.8;         ///< a distinct pose with this fraction of the best inliers: ambiguous
+    /// Points around a candidate that its screening fit and its fine fit take, and its polish at most (before
+    /// those far from the surface are dropped): a thousand or two fix a pose far inside the checks above.
+    std::size_t screen_points = 1500;
+    std::size_t fine_points = 1500;
+    std::size_t polish_points = 8000;
 };
 
 /// Support of a fit: the points on the model, weighted by coverage and the absence of see-through.
@@ -125,7 +130,7 @@ FiducialFit evaluate_model(const PreparedScan& scan, const PreparedModel& model,
 
 /// A scan's pose fitted to every fiducial in view at once (issue 4: every fiducial in view counts).
 struct ScanPoseFit {
-    bool ok = false;
+    bool valid = false;
     Eigen::Isometry3d T_machine_scan = Eigen::Isometry3d::Identity();
     /// Sum of J J^T over the inliers in the machine frame, twist [w, v]; information = JtJ / noise^2.
     Matrix6d JtJ = Matrix6d::Zero();
@@ -134,7 +139,7 @@ struct ScanPoseFit {
     std::vector<std::size_t> points;  ///< scan points taken near each fiducial's surface, in the models' order
     /// Each model's share of JtJ (the same frame and twist), in the models' order: how much each fiducial
     /// holds each direction of the fit, to carry a fiducial's probing error into the scan's pose.
-    std::vector<Matrix6d> JtJ_models;
+    std::vector<Matrix6d> JtJ_per_model;
 };
 
 /// The fiducials' dense samples at their machine poses as one surface, the target of fit_scan_pose: the

@@ -14,34 +14,22 @@ struct PpfSettings {
     double sampling = 0.0;      ///< distance step and point sampling (job units); required > 0
     int angle_bins = 15;        ///< bins over [0, pi] for the three feature angles (12 degrees each)
     int alpha_bins = 30;        ///< bins over 2 pi for the rotation about the normal (12 degrees each)
-    /// Every k-th scene point is a reference point. Measured on seeds 1500-1519 (164 scans, 144 with a
-    /// fiducial in view; `partloc_trials 1500 20`), registered right / wrong: every 8th 108 / 0, every 16th
-    /// 114 / 0, every 24th 110 / 0, every 32nd 110 / 0; every 16th with 16 candidates 116 / 0. Every 16th
-    /// halves the votes, the largest part of a scan's time.
+    /// Every k-th scene point is a reference point: every 16th registers as many scans as every 8th at half
+    /// the votes, the largest part of a scan's time (docs/history.md, PPF settings).
     int reference_stride = 16;
-    /// ...but at least about this many references on a small scene (the scans of 250 k points have 10-15
-    /// thousand points at the sampling, so this decides their stride). 600 (two fifths fewer references; with
-    /// the gate on the fine fits and the joint fit's one stage, localize.cpp) registered 586 scans right on
-    /// seeds 2200-2299 (585 with 1000 and neither), but lost a scan of test seed 11 and one
-    /// of the paper's test 2 (no fiducial fits); 800 lost one of them.
+    /// ...but at least about this many references on a small scene (scans of 250 k points have 10-15
+    /// thousand points at the sampling, so this decides their stride); fewer lost scans of the tests.
     int min_references = 1000;
-    /// Every k-th scene point (by index) is a partner of each reference point: the votes are the references
-    /// times their partners, and the voting is a quarter of a job's CPU (seed 106). Every other point with
-    /// 1500 references (0.78 of the votes: 1633 references of seed 106's 14 699 points instead of 1050)
-    /// registered right / wrong (`partloc_trials FIRST 100`, bench/results/trials_partners2_*): seeds
-    /// 2300-2399 603 / 0 against 602 / 0 (with 1000 references 597 / 0), seeds 2200-2299 579 / 0 against
-    /// 586 / 0, 15 more scans rejected as ambiguous over the two; 2.9-3.0 s per job against 3.4 s (the
-    /// trials' own timing, other sessions). Not taken: fewer votes lose scans that every point keeps.
+    /// Every k-th scene point (by index) is a partner of each reference point; thinning them lost scans that
+    /// every point keeps (docs/history.md, PPF settings).
     int partner_stride = 1;
     double coplanar_deg = 8.0;  ///< a pair whose normals and joining line are within this of coplanar is skipped
     /// Pose clusters returned, most votes first; each is screened by a coarse fit (a third of a scan's time at
-    /// 32). Seeds 1500-1519: 32 candidates 108 right, 16 candidates 110 (every 8th point a reference).
+    /// 32, which registered no more scans than 16).
     int max_candidates = 16;
     int per_location = 2;       ///< at most this many candidates within a quarter diameter of each other
-    /// Features shared by more model pairs than this x the mean cast no votes. Measured on seed 106 (six
-    /// scans, three fiducials): with 8, three quarters of the 2.5 billion votes came from features shared by
-    /// 2-8 x the mean, and the voting took 10.2 of 28 s; with 2, 0.62 billion votes in 4.1 s, and the same
-    /// scans registered (one more, which 8 left ambiguous).
+    /// Features shared by more model pairs than this x the mean cast no votes: common features (planes) cast
+    /// most of the votes and tell little (docs/history.md, PPF settings).
     double bucket_cap = 2.0;
     double cluster_rotation_deg = 12.0;  ///< poses closer than this and cluster_distance join one cluster
     double cluster_distance = 0.0;       ///< (job units); 0: 2 * sampling

@@ -145,7 +145,7 @@ ProbedFrame frame_from_probe_planes(const std::array<std::vector<Eigen::Vector3d
     }
     out.T.linear() = R;
     out.T.translation() = A.colPivHouseholderQr().solve(d);
-    out.ok = true;
+    out.valid = true;
     return out;
 }
 

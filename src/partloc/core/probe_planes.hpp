@@ -38,8 +38,8 @@ struct PlaneFit {
 };
 
 struct ProbedFrame {
-    bool ok = false;
-    std::string reason;  ///< why not, when !ok
+    bool valid = false;
+    std::string reason;  ///< why not, when not valid
     int plane = -1;      ///< the plane the reason is about (0, 1, 2), or -1 when about the three together
     Eigen::Isometry3d T = Eigen::Isometry3d::Identity();  ///< T_machine_frame
     std::array<PlaneFit, 3> planes;

@@ -32,24 +32,14 @@ struct BinState {
     bool on = false, behind = false, crowded = false, front = false;
 };
 
-}  // namespace
-
-Verification verify_pose(const std::vector<Eigen::Vector3d>& scan_points, const Surface& model,
-                         const Eigen::Isometry3d& T_model_scan, const Eigen::Vector3d& viewpoint_scan,
-                         const VerifySettings& s) {
-    Verification v;
-    if (model.points.empty()) return v;
+/// The points on the model's surface: their residuals, and how well they fix the pose (inliers, rmse,
+/// JtJ, conditioning, spread, overflow).
+void surface_support(const std::vector<Eigen::Vector3d>& pts, const Surface& model, const Eigen::Vector3d& eye,
+                     const VerifySettings& s, Verification& v) {
     const double L = std::max(model.diameter / 2.0, 1e-12);
-
-    std::vector<Eigen::Vector3d> pts;
-    pts.reserve(scan_points.size());
-    for (const auto& p : scan_points) pts.push_back(T_model_scan * p);
-
-    // Points on the surface: residuals, and how well they fix the pose.
     double r2 = 0.0;
     Matrix6d Jn = Matrix6d::Zero();
     Eigen::Matrix3d N = Eigen::Matrix3d::Zero();
-    const Eigen::Vector3d eye = T_model_scan * viewpoint_scan;
     const double reach = std::max(4.0 * model.spacing, 0.05 * model.diameter);
     int knn_idx[6];
     double knn_d2[6];
@@ -102,12 +92,17 @@ Verification verify_pose(const std::vector<Eigen::Vector3d>& scan_points, const 
         v.spread = std::max(0.0, en.eigenvalues()(0));
     }
 
-    // Along the scanner's rays: the model's visible surface (a z-buffer of its samples) against the returns.
+}
+
+/// The model's visible surface along the scanner's rays (a z-buffer of its samples) against the returns:
+/// observed, seen through, crowded, occluded and missing bins. False when the eye is at the model's centre.
+bool ray_bins(const std::vector<Eigen::Vector3d>& pts, const Surface& model, const Eigen::Vector3d& eye,
+              const VerifySettings& s, Verification& v) {
     RayBins rb;
     rb.eye = eye;
     const Eigen::Vector3d to_model = model.center - rb.eye;
     const double dist = to_model.norm();
-    if (dist < 1e-12) return v;
+    if (dist < 1e-12) return false;
     rb.a = to_model / dist;
     rb.e1 = rb.a.unitOrthogonal();
     rb.e2 = rb.a.cross(rb.e1);
@@ -164,6 +159,23 @@ Verification verify_pose(const std::vector<Eigen::Vector3d>& scan_points, const 
         else if (b.front) ++v.occluded;
         else ++v.missing;
     }
+    return true;
+}
+
+}  // namespace
+
+Verification verify_pose(const std::vector<Eigen::Vector3d>& scan_points, const Surface& model,
+                         const Eigen::Isometry3d& T_model_scan, const Eigen::Vector3d& viewpoint_scan,
+                         const VerifySettings& s) {
+    Verification v;
+    if (model.points.empty()) return v;
+
+    std::vector<Eigen::Vector3d> pts;
+    pts.reserve(scan_points.size());
+    for (const auto& p : scan_points) pts.push_back(T_model_scan * p);
+    const Eigen::Vector3d eye = T_model_scan * viewpoint_scan;
+    surface_support(pts, model, eye, s, v);
+    if (!ray_bins(pts, model, eye, s, v)) return v;
     const std::size_t judged = v.observed + v.seen_through + v.crowded + v.missing;
     v.coverage = judged ? static_cast<double>(v.observed) / judged : 0.0;
     v.violation = static_cast<double>(v.seen_through + v.crowded) /

@@ -63,7 +63,7 @@ WorkpieceFit fit_reference_surfaces(const std::vector<Eigen::Vector3d>& merged, 
     icp.iterations += first.iterations;
     fit.iterations = icp.iterations;
     fit.distance = fine;
-    fit.T_correction = icp.T_target_source.inverse();
+    fit.T_located_nominal = icp.T_target_source.inverse();
     fit.rmse = icp.rmse;
     fit.inliers = icp.inliers;
     fit.JtJ = icp.JtJ;
@@ -103,30 +103,30 @@ WorkpieceFit fit_reference_surfaces(const std::vector<Eigen::Vector3d>& merged, 
                       fit.rmse, st.max_rmse_noise, st.noise);
         fit.reason = buf;
     } else {
-        fit.ok = true;
+        fit.valid = true;
     }
     return fit;
 }
 
 IcpResult fit_last_stage(const std::vector<Eigen::Vector3d>& points, const Surface& reference,
-                         const Eigen::Isometry3d& T_nominal_machine, double distance,
+                         const Eigen::Isometry3d& T_nominal_located, double distance,
                          const std::vector<Eigen::Vector3d>* normals) {
     IcpSettings is;
     is.max_distances = {distance};
     is.max_iterations = 20;
-    return icp_point_to_plane(points, reference, T_nominal_machine, is, normals);
+    return icp_point_to_plane(points, reference, T_nominal_located, is, normals);
 }
 
 std::string part_disowns_scan(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>* normals,
                               const WorkpieceFit& located, const Surface& reference,
                               const WorkpieceFitSettings& wfs) {
-    const Eigen::Isometry3d T_nominal_machine =
-        located.ok ? located.T_correction.inverse() : Eigen::Isometry3d::Identity();
+    const Eigen::Isometry3d T_nominal_located =
+        located.valid ? located.T_located_nominal.inverse() : Eigen::Isometry3d::Identity();
     std::vector<Eigen::Vector3d> pts, nrm;
     pts.reserve(points.size());
-    for (const auto& p : points) pts.push_back(T_nominal_machine * p);
+    for (const auto& p : points) pts.push_back(T_nominal_located * p);
     if (normals && normals->size() == points.size())
-        for (const auto& n : *normals) nrm.push_back(T_nominal_machine.linear() * n);
+        for (const auto& n : *normals) nrm.push_back(T_nominal_located.linear() * n);
     const WorkpieceFit own = fit_reference_surfaces(pts, reference, wfs, nrm.empty() ? nullptr : &nrm);
     char buf[240];
     if (own.inliers < wfs.min_inliers) {
@@ -139,7 +139,7 @@ std::string part_disowns_scan(const std::vector<Eigen::Vector3d>& points, const 
                       own.inliers, pts.size(), wfs.min_inliers);
         return buf;
     }
-    if (!located.ok) {
+    if (!located.valid) {
         // With the part not located from the scans together there is nothing else to hold this scan to: its
         // own points must fix the part in all six degrees of freedom (measured: seed 1320, 5 % outliers,
         // fiducial A's model mirrored: the mirrored model alone placed scan 2 224 mm and 178 degrees off,
@@ -149,10 +149,10 @@ std::string part_disowns_scan(const std::vector<Eigen::Vector3d>& points, const 
         return {};
     }
     // Each point against the reference where its own fit puts it: the own fit moves the part by
-    // T_correction, so the point sits at T_correction^-1 p relative to the nominal surfaces. (Until this
-    // test, the point was moved by T_correction itself, away from the surfaces: a scan 1 mm off moved its
+    // T_located_nominal, so the point sits at T_located_nominal^-1 p relative to the nominal surfaces. (Until this
+    // test, the point was moved by T_located_nominal itself, away from the surfaces: a scan 1 mm off moved its
     // points 2 mm off, out of reach of the search, and only the points it slid along were counted.)
-    const Eigen::Isometry3d back = own.T_correction.inverse();
+    const Eigen::Isometry3d back = own.T_located_nominal.inverse();
     double sum = 0.0;
     std::size_t on = 0;
     for (const auto& p : pts) {

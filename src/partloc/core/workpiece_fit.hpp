@@ -22,10 +22,10 @@ struct WorkpieceFitSettings {
 };
 
 struct WorkpieceFit {
-    bool ok = false;
+    bool valid = false;
     std::string reason;
-    /// Moves the nominal reference surfaces onto the measured ones: located = T_correction * nominal.
-    Eigen::Isometry3d T_correction = Eigen::Isometry3d::Identity();
+    /// Moves the nominal reference surfaces onto the measured ones: located = T_located_nominal * nominal.
+    Eigen::Isometry3d T_located_nominal = Eigen::Isometry3d::Identity();
     double rmse = 0.0;
     std::size_t inliers = 0;
     double conditioning = 0.0;
@@ -42,17 +42,17 @@ WorkpieceFit fit_reference_surfaces(const std::vector<Eigen::Vector3d>& merged, 
                                     const std::vector<Eigen::Vector3d>* normals = nullptr);
 
 /// The fit's last stage on `points` (machine frame; `normals` optional, as in the fit) from the pose
-/// T_nominal_machine (the inverse of a fit's T_correction), at the last stage's correspondence distance
+/// T_nominal_located (the inverse of a fit's T_located_nominal), at the last stage's correspondence distance
 /// (WorkpieceFit::distance): fit_reference_surfaces' own last stage, and the same fit again on other points
 /// (every scanned point near the surfaces, the uncertainty's jackknife).
 IcpResult fit_last_stage(const std::vector<Eigen::Vector3d>& points, const Surface& reference,
-                         const Eigen::Isometry3d& T_nominal_machine, double distance,
+                         const Eigen::Isometry3d& T_nominal_located, double distance,
                          const std::vector<Eigen::Vector3d>* normals = nullptr);
 
 /// Whether the part confirms a scan that one fiducial's fit alone registered (a look-alike of that fiducial,
 /// or the fiducial moved, can place such a scan): the part fitted again on the scan's workpiece points alone
 /// (machine frame, axes at 0; normals optional), from `located`, the part located from all the registered
-/// scans (`located.ok`), or from nominal where it was not. Empty when the part confirms the scan, else why
+/// scans (`located.valid`), or from nominal where it was not. Empty when the part confirms the scan, else why
 /// not:
 /// - fewer than min_inliers of its points on the reference surfaces (unconfirmed);
 /// - with the part located: its own fit moves its points along the surfaces' normals by more than five times

@@ -165,7 +165,7 @@ class JobParser {
                 planes[i].push_back(vector3(lists[i][k], list + "[" + std::to_string(k) + "]"));
         }
         const ProbedFrame frame = frame_from_probe_planes(planes);
-        if (!frame.ok) {
+        if (!frame.valid) {
             if (frame.plane >= 0)
                 fail(lists[frame.plane], at + "[" + std::to_string(frame.plane) + "]", frame.reason);
             fail(lists, at, frame.reason);

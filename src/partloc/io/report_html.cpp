@@ -214,23 +214,16 @@ std::string escape_html(const std::string& text) {
     return out;
 }
 
-std::string render_report_html(const Job& job, const JobResult& result, const ReportOptions& options) {
-    Formatter f{length_decimals(job.units), job.units};
-    const std::string u = escape_html(job.units);
-    const std::string title =
-        "partloc report" + (options.job_name.empty() ? "" : ": " + escape_html(options.job_name));
-    std::ostringstream h;
-    h << "<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'><title>" << title << "</title><style>"
-      << kStyle << "</style></head><body>\n<h1>" << title << "</h1>\n";
-
+/// The banner and the pose: what the machinist came for.
+static void pose_section(std::ostream& h, const Job& job, const JobResult& result, const Formatter& f, const std::string& u) {
     const WorkpieceResult& w = result.workpiece;
     std::size_t registered = 0;
-    for (const auto& s : result.scans) registered += s.registered ? 1 : 0;
-    if (result.located) {
+    for (const auto& s : result.scans) registered += s.valid ? 1 : 0;
+    if (result.workpiece.valid) {
         h << "<div class='banner ok'><b>Workpiece located</b> from " << registered << " of "
           << result.scans.size() << " scans.</div>\n";
     } else {
-        h << "<div class='banner bad'><b>Workpiece not located.</b> " << escape_html(w.message) << "</div>\n";
+        h << "<div class='banner bad'><b>Workpiece not located.</b> " << escape_html(w.reason) << "</div>\n";
     }
 
     // The pose first: it is what the machinist came for.
@@ -239,7 +232,7 @@ std::string render_report_html(const Job& job, const JobResult& result, const Re
       << ")</th><th>A (°)</th><th>B (°)</th><th>C (°)</th></tr>\n";
     const Eigen::Isometry3d& nominal = job.workpiece.T_machine_workpiece;
     h << "<tr><th>nominal (datum)</th>" << pose_cells(nominal, f) << "</tr>\n";
-    if (w.located) {
+    if (w.valid) {
         h << "<tr><th>located</th>" << pose_cells(w.T_machine_workpiece, f) << "</tr>\n";
         const Eigen::Vector3d dt = w.T_machine_workpiece.translation() - nominal.translation();
         const Eigen::Vector3d el = euler_xyz_deg(w.T_machine_workpiece.linear()),
@@ -265,7 +258,7 @@ std::string render_report_html(const Job& job, const JobResult& result, const Re
     h << "<p class=dim>A, B, C: euler_xyz_deg, R = Rz(C)·Ry(B)·Rx(A), rotations about the machine X, then Y, "
          "then "
          "Z axes.</p>\n";
-    if (w.located) {
+    if (w.valid) {
         const PoseError e = pose_error(w.T_machine_workpiece, nominal);
         h << "<table><tr><th>shift from nominal</th><td class=num>" << f.length(e.translation) << " " << u
           << "</td></tr><tr><th>rotation from nominal</th><td class=num>" << f.angle(e.rotation_deg)
@@ -274,7 +267,10 @@ std::string render_report_html(const Job& job, const JobResult& result, const Re
           << "</td></tr><tr><th>of those on the reference surfaces</th><td class=num>" << w.inliers
           << "</td></tr></table>\n";
     }
+}
 
+/// One row per scan: status, fiducials, scale, time, reason and warnings.
+static void scans_section(std::ostream& h, const Job& job, const JobResult& result, const Formatter& f, const std::string& u) {
     h << "<h2>Scans</h2>\n<table><tr><th>#</th><th>file</th><th>axes</th><th>status</th><th>fiducials</th>"
          "<th>score</th><th>rmse ("
       << u << ")</th><th>points</th><th>spacing (" << u << ")</th><th>noise (" << u
@@ -287,17 +283,20 @@ std::string render_report_html(const Job& job, const JobResult& result, const Re
         h << "<tr><td class=num>" << i + 1 << "</td><td>"
           << escape_html(s.file.empty() && scan ? scan->file : s.file) << "</td><td>"
           << (scan ? axis_values(scan->axes) : "")
-          << "</td><td class=" << (s.registered ? "reg>registered" : "rej>rejected") << "</td><td>" << fids
+          << "</td><td class=" << (s.valid ? "reg>registered" : "rej>rejected") << "</td><td>" << fids
           << "</td><td class=num>" << fixed(s.score, 2) << "</td><td class=num>" << f.length(s.rmse)
           << "</td><td class=num>" << s.points << "</td><td class=num>" << f.length(s.point_spacing)
           << "</td><td class=num>" << f.length(s.noise) << "</td><td class=num>" << fixed(s.seconds, 2)
-          << "</td><td>" << escape_html(s.message);
+          << "</td><td>" << escape_html(s.reason);
         for (const auto& warning : s.warnings) h << "<br><b>warning:</b> " << escape_html(warning);
         h << "</td></tr>\n";
     }
     if (result.scans.empty()) h << "<tr><td colspan=12 class=dim>no scan results</td></tr>\n";
     h << "</table>\n";
+}
 
+/// Each scan's fiducial fits, accepted or rejected and why.
+static void fits_section(std::ostream& h, const JobResult& result, const Formatter& f, const std::string& u) {
     h << "<h2>Fiducials tried per scan</h2>\n";
     for (std::size_t i = 0; i < result.scans.size(); ++i) {
         const ScanResult& s = result.scans[i];
@@ -311,7 +310,7 @@ std::string render_report_html(const Job& job, const JobResult& result, const Re
              "tr>\n";
         for (const FiducialFit& fit : s.fits)
             h << "<tr><td>" << escape_html(fit.fiducial)
-              << "</td><td class=" << (fit.accepted ? "reg>accepted" : "rej>rejected")
+              << "</td><td class=" << (fit.valid ? "reg>accepted" : "rej>rejected")
               << (fit.searched ? "" : " where the others put it") << "</td><td class=num>"
               << fixed(fit.score, 2) << "</td><td class=num>" << f.length(fit.rmse) << "</td><td class=num>"
               << fixed(fit.coverage, 3) << "</td><td class=num>" << fixed(fit.violation, 3)
@@ -319,7 +318,12 @@ std::string render_report_html(const Job& job, const JobResult& result, const Re
               << "</td><td>" << escape_html(fit.reason) << "</td></tr>\n";
         h << "</table>\n";
     }
+}
 
+/// Three orthographic views of the merged points with the nominal and located frames.
+static void points_section(std::ostream& h, const Job& job, const JobResult& result, const Formatter& f, const ReportOptions& options) {
+    const WorkpieceResult& w = result.workpiece;
+    const Eigen::Isometry3d& nominal = job.workpiece.T_machine_workpiece;
     h << "<h2>Merged workpiece points (machine frame, all axes at 0)</h2>\n";
     std::vector<Eigen::Vector3d> points;
     if (result.merged && !result.merged->points_.empty()) {
@@ -329,7 +333,7 @@ std::string render_report_html(const Job& job, const JobResult& result, const Re
         for (std::size_t i = 0; i < all.size(); i += stride)
             if (all[i].allFinite()) points.push_back(all[i]);
     }
-    if (points.empty() && !w.located) {
+    if (points.empty() && !w.valid) {
         h << "<p class=dim>No merged points: no scan was registered.</p>\n";
     } else {
         Eigen::AlignedBox3d box;
@@ -337,7 +341,7 @@ std::string render_report_html(const Job& job, const JobResult& result, const Re
         double axis_length = points.empty() ? 0.0 : 0.2 * box.sizes().maxCoeff();
         if (!(axis_length > 0)) axis_length = 10.0 / millimetres_per_unit_or_one(job.units);
         std::vector<std::pair<Eigen::Isometry3d, bool>> frames = {{nominal, false}};
-        if (w.located) frames.push_back({w.T_machine_workpiece, true});
+        if (w.valid) frames.push_back({w.T_machine_workpiece, true});
         h << "<p class=dim>" << points.size() << " of " << (result.merged ? result.merged->points_.size() : 0)
           << " points drawn, darker nearer. Workpiece frame: located solid, nominal dashed; X red, Y green, "
              "Z "
@@ -347,7 +351,10 @@ std::string render_report_html(const Job& job, const JobResult& result, const Re
                                {"Side (YZ), looking along −X", 1, 2, 0, 1.0}};
         for (const View& v : views) h << svg_view(v, points, frames, axis_length, f) << "\n";
     }
+}
 
+/// What the job said: units, scanner, models, axes and fiducials.
+static void job_section(std::ostream& h, const Job& job, const JobResult& result, const Formatter& f, const std::string& u) {
     h << "<h2>Job</h2>\n<table>";
     h << "<tr><th>units</th><td>" << u << "</td></tr>";
     h << "<tr><th>scanner</th><td>point spacing "
@@ -382,7 +389,23 @@ std::string render_report_html(const Job& job, const JobResult& result, const Re
           << f.vec(fid.T_machine_fiducial.translation()) << "</td><td>"
           << f.vec(euler_xyz_deg(fid.T_machine_fiducial.linear()), true) << "</td><td>"
           << axis_values(fid.probed_at) << "</td><td>" << chain(fid.moves_with) << "</td></tr>";
-    h << "</table>\n</body></html>\n";
+    h << "</table>\n";
+}
+
+std::string render_report_html(const Job& job, const JobResult& result, const ReportOptions& options) {
+    const Formatter f{length_decimals(job.units), job.units};
+    const std::string u = escape_html(job.units);
+    const std::string title =
+        "partloc report" + (options.job_name.empty() ? "" : ": " + escape_html(options.job_name));
+    std::ostringstream h;
+    h << "<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'><title>" << title << "</title><style>"
+      << kStyle << "</style></head><body>\n<h1>" << title << "</h1>\n";
+    pose_section(h, job, result, f, u);
+    scans_section(h, job, result, f, u);
+    fits_section(h, result, f, u);
+    points_section(h, job, result, f, options);
+    job_section(h, job, result, f, u);
+    h << "</body></html>\n";
     return h.str();
 }
 

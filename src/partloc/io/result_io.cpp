@@ -39,7 +39,7 @@ Json matrix(const Eigen::Isometry3d& T) {
 Json fit_json(const FiducialFit& f) {
     Json j;
     j["fiducial"] = f.fiducial;
-    j["accepted"] = f.accepted;
+    j["accepted"] = f.valid;
     j["reason"] = f.reason;
     j["T_scan_fiducial"] = matrix(f.T_scan_fiducial);
     j["rmse"] = number(f.rmse);
@@ -55,12 +55,12 @@ Json fit_json(const FiducialFit& f) {
 Json scan_json(const ScanResult& s, const Scan* scan) {
     Json j;
     j["file"] = !s.file.empty() || !scan ? s.file : scan->file;
-    j["status"] = s.registered ? "registered" : "rejected";
+    j["status"] = s.valid ? "registered" : "rejected";
     j["fiducials"] = s.fiducials;
     j["score"] = number(s.score);
     j["rmse"] = number(s.rmse);
-    j["T_machine_scan"] = s.registered ? matrix(s.T_machine_scan) : Json(nullptr);
-    j["message"] = s.message;
+    j["T_machine_scan"] = s.valid ? matrix(s.T_machine_scan) : Json(nullptr);
+    j["message"] = s.reason;
     j["warnings"] = s.warnings;
     Json axes = Json::object();
     if (scan)
@@ -87,7 +87,7 @@ Json pose_json(const Eigen::Isometry3d& T) {
 Json workpiece_json(const Job& job, const WorkpieceResult& w) {
     const Eigen::Isometry3d& nominal = job.workpiece.T_machine_workpiece;
     Json j;
-    if (w.located) {
+    if (w.valid) {
         j = pose_json(w.T_machine_workpiece);
         const Eigen::Vector3d e_loc = euler_xyz_deg(w.T_machine_workpiece.linear());
         const Eigen::Vector3d e_nom = euler_xyz_deg(nominal.linear());
@@ -107,8 +107,8 @@ Json workpiece_json(const Job& job, const WorkpieceResult& w) {
     j["rmse"] = number(w.rmse);
     j["points"] = w.points;
     j["inliers"] = w.inliers;
-    j["located"] = w.located;
-    j["message"] = w.message;
+    j["located"] = w.valid;
+    j["message"] = w.reason;
     j["nominal"] = pose_json(nominal);
     const Uncertainty& u = w.uncertainty;
     if (u.available) {
@@ -199,7 +199,7 @@ void remove_stale(const fs::path& path) {
 
 std::string result_json(const Job& job, const JobResult& result) {
     Json j;
-    j["status"] = result.located ? "located" : "not_located";
+    j["status"] = result.workpiece.valid ? "located" : "not_located";
     j["units"] = job.units;
     Json scans = Json::array();
     for (std::size_t i = 0; i < result.scans.size(); ++i)

@@ -14,21 +14,22 @@
 
 namespace partloc {
 
+/// One scan's outcome: `valid` means registered (result.json's "registered"), else "rejected" with the reason.
 struct ScanResult {
     std::string file;
-    bool registered = false;
+    bool valid = false;
     std::vector<std::string> fiducials;  ///< the fiducials that fixed the scan
     double score = 0.0;
     double rmse = 0.0;
     /// Maps scan points to the machine frame at the scan's axis values (where the fixed bodies are).
     Eigen::Isometry3d T_machine_scan = Eigen::Isometry3d::Identity();
-    std::string message;  ///< why it was rejected; empty when registered
+    std::string reason;  ///< why it was rejected; empty when registered (result.json's "message")
     std::vector<std::string> warnings;  ///< registered, but something a person should know (a fiducial left out)
     /// Information of T_machine_scan (twist [w, v] in the machine frame) from the joint fit: JtJ / noise^2.
     Matrix6d information = Matrix6d::Zero();
     /// Each fiducial's share of the joint fit's JtJ (same frame and twist), in `fiducials`' order; empty when
     /// the scan was placed by one fiducial's fit without the joint one.
-    std::vector<Matrix6d> fiducial_jtj;
+    std::vector<Matrix6d> JtJ_per_fiducial;
     std::size_t points = 0;          ///< valid points in the scan
     double point_spacing = 0.0;      ///< used for this scan (given or estimated), job units
     double noise = 0.0;              ///< used for this scan (given or estimated), job units
@@ -51,9 +52,10 @@ struct Uncertainty {
     int scans = 0;  ///< scans in the jackknife
 };
 
+/// The workpiece's outcome: `valid` means located (result.json's status "located"), else the reason.
 struct WorkpieceResult {
-    bool located = false;
-    std::string message;  ///< why it was not located; empty when located
+    bool valid = false;
+    std::string reason;  ///< why it was not located; empty when located (result.json's "message")
     Eigen::Isometry3d T_machine_workpiece = Eigen::Isometry3d::Identity();  ///< located, axes at 0
     Eigen::Isometry3d T_machine_workpiece_nominal = Eigen::Isometry3d::Identity();
     double rmse = 0.0;        ///< RMS distance of the merged points to the fitted reference surfaces
@@ -66,7 +68,6 @@ struct WorkpieceResult {
 };
 
 struct JobResult {
-    bool located = false;
     std::string units = "mm";
     std::vector<ScanResult> scans;
     WorkpieceResult workpiece;

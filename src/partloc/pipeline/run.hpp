@@ -5,6 +5,7 @@
 #include <string>
 
 #include "partloc/core/localize.hpp"
+#include "partloc/pipeline/config.hpp"
 #include "partloc/pipeline/job.hpp"
 #include "partloc/pipeline/result.hpp"
 
@@ -26,13 +27,23 @@ struct RunSettings {
     int threads = 0;         ///< 0: all cores. Results do not depend on it.
     std::uint64_t seed = 1;  ///< seeds every random choice; same seed, same result
     bool build_stock = true; ///< triangulate the merged workpiece points into result.stock
-    /// Search every fiducial in every scan on its own (the rest together after the first), also where an
-    /// earlier fiducial's fit already settles the scan (for tests and benchmarks that compare the two;
-    /// slower, same placements).
-    bool search_every_fiducial = false;
+    Config config;           ///< every tuning constant (pipeline/config.hpp)
     /// Prepared fiducial models kept between jobs; null: each job prepares its own (prepare_model).
     ModelStore* models = nullptr;
 };
+
+/// What every scan and fiducial of a job share before any scan is registered: run_job's first step.
+struct JobPreparation {
+    std::vector<Scale> scales;          ///< each scan's: the scanner's specification, or measured on the scan
+    double spacing = 0.0;               ///< the scans' median point spacing (job units)
+    double sampling = 0.0;              ///< the global fit's sampling (job units)
+    std::vector<PreparedModel> models;  ///< the fiducials', in the job's order
+    Eigen::AlignedBox3d region;         ///< where the workpiece's points are looked for, machine0
+};
+
+/// Measures each scan's scale, chooses the global fit's sampling from the fiducials' size and the scans'
+/// spacing (ScaleSettings), and prepares every fiducial's model.
+JobPreparation prepare_job(const Job& job, const RunSettings& settings = {});
 
 /// Runs the job. Never throws for "no solution": a scan that no fiducial fits is rejected with a reason, a
 /// workpiece that cannot be fitted is not located with a reason. Throws std::invalid_argument only for a

@@ -51,13 +51,13 @@ struct UncertaintyInputs {
     /// located (the workpiece's motion undone).
     std::vector<Eigen::Isometry3d> scan_to_axes0;
     const Surface* reference = nullptr;                  ///< nominal reference surfaces
-    Eigen::Isometry3d T_correction = Eigen::Isometry3d::Identity();  ///< the fit: located = T_correction * nominal
+    Eigen::Isometry3d T_located_nominal = Eigen::Isometry3d::Identity();  ///< the fit: located = T_located_nominal * nominal
     double fit_distance = 0.0;   ///< the fit's last correspondence distance
     double noise = 0.0;          ///< scan noise, 1 sigma
     Matrix6d information = Matrix6d::Zero();  ///< the fit's, machine frame, twist [w, v] (JtJ / noise^2)
     /// The part's fit again on other points (machine frame, normals or null), from the full fit's pose:
-    /// the T_correction it finds. Empty: the part fit's last stage (fit_last_stage) on `reference` from
-    /// T_correction.
+    /// the T_located_nominal it finds. Empty: the part fit's last stage (fit_last_stage) on `reference` from
+    /// T_located_nominal.
     std::function<std::optional<Eigen::Isometry3d>(const std::vector<Eigen::Vector3d>&,
                                                    const std::vector<Eigen::Vector3d>*)>
         refit;
