@@ -1,5 +1,5 @@
-// partloc as a library (README, "Use it as a library"): locate the workpiece of a job, then register its first
-// scan again by hand. Usage: locate JOB.yaml OUT_DIR; exit 0 located, 3 not located.
+// partloc as a library (README, "Use it as a library"): locate the workpiece of a job, then register its
+// first scan again by hand. Usage: locate JOB.yaml OUT_DIR; exit 0 located, 3 not located.
 #include <cstdio>
 
 #include "partloc/partloc.hpp"
@@ -22,11 +22,13 @@ int main(int argc, char** argv) {
     const partloc::Scan& scan = job.scans.front();
     std::vector<partloc::PlacedFiducial> placed;
     for (std::size_t k = 0; k < job.fiducials.size(); ++k)
-        placed.push_back({job.fiducials[k].name, &prep.models[k], partloc::fiducial_at(job.machine, job.fiducials[k], scan.axes)});
+        placed.push_back({job.fiducials[k].name, &prep.models[k],
+                          partloc::fiducial_at(job.machine, job.fiducials[k], scan.axes)});
     const partloc::Scale scale = prep.scales.front();
     const auto eye = partloc::estimate_viewpoint(*scan.points, scale.spacing);
     const partloc::PreparedScan prepared = partloc::prepare_scan(*scan.points, scale, prep.sampling, eye);
-    const partloc::ScanRegistration reg = partloc::register_scan(prepared, placed, partloc::Config{}.candidates);
+    const partloc::ScanRegistration reg =
+        partloc::register_scan(prepared, placed, partloc::Config{}.candidates);
     std::printf("%s: %s\n", scan.file.c_str(), reg.valid ? "registered" : reg.reason.c_str());
     // [/readme]
     return 0;
