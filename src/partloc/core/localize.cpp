@@ -327,7 +327,7 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
         const auto& c = screened[i];
         // Past the first, a candidate whose quick verification found five times the evidence against that a
         // fit may have is not fitted finely: of 570 candidates verified in the first ten cells of seeds
-        // 1500-1519 (bench/results/candidates_gate_1500.txt), the 107 accepted had at most 3.3 times before
+        // 1500-1519 (git show 52c5702:bench/results/candidates_gate_1500.txt), the 107 accepted had at most 3.3 times before
         // their fine fit; 96 others past the first had more than 5. The first stays, so that a fiducial's
         // reason in the report is its best candidate's.
         if (i > 0 && c.against > 5.0) continue;
