@@ -236,3 +236,13 @@ TEST_F(CliRun, ModelCacheKeepsTheResultAndSaysWhatItCouldNotDo) {
     const Outcome both = run(dir_ / "job.yaml", dir_ / "out7", "--no-cache --cache '" + dir_.string() + "'");
     EXPECT_EQ(both.code, 2) << "--cache and --no-cache together";
 }
+
+TEST_F(CliRun, VersionPrintsTheProjectsVersionAndExitsZero) {
+    const fs::path out_txt = dir_ / "version.txt";
+    const int status = std::system(("'" + std::string(PARTLOC_EXE) + "' --version > '" + out_txt.string() + "'").c_str());
+    ASSERT_TRUE(WIFEXITED(status));
+    EXPECT_EQ(WEXITSTATUS(status), 0);
+    const std::string said = slurp(out_txt);
+    EXPECT_EQ(said.rfind("partloc ", 0), 0u) << said;
+    EXPECT_NE(said.find_first_of("0123456789"), std::string::npos) << said;
+}

@@ -7,6 +7,7 @@
 int main(int argc, char** argv) {
     CLI::App app{"partloc: locate a workpiece in a CNC machine from 3D scans and fiducials"};
     app.require_subcommand(1);
+    app.set_version_flag("--version", "partloc " PARTLOC_VERSION);
 
     std::string job_file, out_dir, demo_out, sim_out, cache_dir;
     bool no_cache = false;
