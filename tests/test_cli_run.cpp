@@ -246,3 +246,16 @@ TEST_F(CliRun, VersionPrintsTheProjectsVersionAndExitsZero) {
     EXPECT_EQ(said.rfind("partloc ", 0), 0u) << said;
     EXPECT_NE(said.find_first_of("0123456789"), std::string::npos) << said;
 }
+
+TEST_F(CliRun, ProgressTellsEachStageAndScanOnStderrAndQuietTellsNothing) {
+    partloc::test::spit(dir_ / "job.yaml", job());
+    const Outcome told = run(dir_ / "job.yaml", dir_ / "out1", "--progress");
+    EXPECT_NE(told.err.find("partloc: registering 1 scans"), std::string::npos) << told.err;
+    EXPECT_NE(told.err.find("partloc: scan 1 of 1 (scans/scan_01.ply"), std::string::npos) << told.err;
+    const Outcome quiet = run(dir_ / "job.yaml", dir_ / "out2", "--quiet");
+    EXPECT_EQ(quiet.err.find("partloc: registering"), std::string::npos) << quiet.err;
+    EXPECT_EQ(told.code, quiet.code);
+    // Not a terminal (here a file): nothing told unless asked.
+    const Outcome plain = run(dir_ / "job.yaml", dir_ / "out3");
+    EXPECT_EQ(plain.err.find("partloc: registering"), std::string::npos) << plain.err;
+}

@@ -41,7 +41,52 @@ struct TestRow {
 
 }  // namespace
 
-int command_demo(const std::string& out_dir, std::uint64_t seed, int threads) {
+/// One of the paper's five tests: simulated, run, compared with its truth, written under `out_dir` if given.
+TestRow run_test(int test, std::uint64_t seed, const sim::ScenarioOptions& options, int threads,
+                 const std::string& out_dir, bool tell) {
+    namespace fs = std::filesystem;
+    if (tell) std::cerr << "partloc demo: test " << test << " of 5: simulating the cell" << std::endl;
+    TestRow row;
+    row.test = test;
+    auto t0 = Clock::now();
+    const sim::SimulatedJob s = sim::simulate_paper_test(test, seed, options);
+    row.sim_seconds = seconds_since(t0);
+    row.truth = s.truth.T_machine_workpiece;
+    row.scans = s.job.scans.size();
+    for (const auto& scan : s.job.scans) row.points += scan.points->points_.size();
+
+    RunSettings settings;
+    settings.threads = threads;
+    settings.seed = seed;
+    if (tell)
+        settings.progress = [test](const std::string& what) {
+            std::cerr << "partloc demo: test " << test << ": " << what << std::endl;
+        };
+    t0 = Clock::now();
+    const JobResult result = run_job(s.job, settings);
+    row.run_seconds = seconds_since(t0);
+    row.located = result.workpiece.valid;
+    row.located_pose = result.workpiece.T_machine_workpiece;
+    row.message = result.workpiece.reason;
+    for (std::size_t i = 0; i < result.scans.size() && i < s.truth.scans.size(); ++i) {
+        if (!result.scans[i].valid) continue;
+        ++row.registered;
+        const PoseError e =
+            pose_error(result.scans[i].T_machine_scan, s.truth.scans[i].T_machine_scan);
+        row.worst_scan_mm = std::max(row.worst_scan_mm, e.translation);
+        row.worst_scan_deg = std::max(row.worst_scan_deg, e.rotation_deg);
+    }
+    if (!out_dir.empty()) {
+        const fs::path dir = fs::path(out_dir) / ("test_" + std::to_string(test));
+        io::write_job(dir, s.job);
+        io::write_truth(dir / "truth.json", s.truth);
+        io::write_outputs(dir / "out", s.job, result, (dir / "job.yaml").string());
+    }
+    return row;
+}
+
+int command_demo(const std::string& out_dir, std::uint64_t seed, int threads, Progress progress) {
+    const bool tell = telling(progress);
     namespace fs = std::filesystem;
     std::unique_ptr<tbb::global_control> limit;
     if (threads > 0)
@@ -59,39 +104,7 @@ int command_demo(const std::string& out_dir, std::uint64_t seed, int threads) {
     std::vector<TestRow> rows;
     try {
         for (int test = 1; test <= 5; ++test) {
-            TestRow row;
-            row.test = test;
-            auto t0 = Clock::now();
-            const sim::SimulatedJob s = sim::simulate_paper_test(test, seed, options);
-            row.sim_seconds = seconds_since(t0);
-            row.truth = s.truth.T_machine_workpiece;
-            row.scans = s.job.scans.size();
-            for (const auto& scan : s.job.scans) row.points += scan.points->points_.size();
-
-            RunSettings settings;
-            settings.threads = threads;
-            settings.seed = seed;
-            t0 = Clock::now();
-            const JobResult result = run_job(s.job, settings);
-            row.run_seconds = seconds_since(t0);
-            row.located = result.workpiece.valid;
-            row.located_pose = result.workpiece.T_machine_workpiece;
-            row.message = result.workpiece.reason;
-            for (std::size_t i = 0; i < result.scans.size() && i < s.truth.scans.size(); ++i) {
-                if (!result.scans[i].valid) continue;
-                ++row.registered;
-                const PoseError e =
-                    pose_error(result.scans[i].T_machine_scan, s.truth.scans[i].T_machine_scan);
-                row.worst_scan_mm = std::max(row.worst_scan_mm, e.translation);
-                row.worst_scan_deg = std::max(row.worst_scan_deg, e.rotation_deg);
-            }
-            if (!out_dir.empty()) {
-                const fs::path dir = fs::path(out_dir) / ("test_" + std::to_string(test));
-                io::write_job(dir, s.job);
-                io::write_truth(dir / "truth.json", s.truth);
-                io::write_outputs(dir / "out", s.job, result, (dir / "job.yaml").string());
-            }
-            rows.push_back(row);
+            rows.push_back(run_test(test, seed, options, threads, out_dir, tell));
         }
     } catch (const std::exception& e) {
         std::cerr << "partloc demo: " << e.what() << "\n";

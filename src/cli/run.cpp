@@ -4,6 +4,8 @@
 #include <open3d/utility/Logging.h>
 
 #include <cstdio>
+#include <unistd.h>
+
 #include <iostream>
 #include <optional>
 #include <sstream>
@@ -75,12 +77,15 @@ void print_summary(std::ostream& out, const std::string& job_file, const Job& jo
 
 }  // namespace
 
+bool telling(Progress p) { return p == Progress::On || (p == Progress::Auto && ::isatty(STDERR_FILENO) == 1); }
+
 int command_run(const std::string& job_file, const std::string& out_dir, int threads, std::uint64_t seed,
-                const std::string& cache_dir, bool cache) {
+                const std::string& cache_dir, bool cache, Progress progress) {
     open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
 
     Job job;
     try {
+        if (telling(progress)) std::cerr << "partloc: reading " << job_file << " and its files" << std::endl;
         job = io::load_job(job_file, io::LoadOptions{threads});
     } catch (const io::InputError& e) {
         return complain(e.what(), kBadInput);
@@ -109,6 +114,8 @@ int command_run(const std::string& job_file, const std::string& out_dir, int thr
         settings.threads = threads;
         settings.seed = seed;
         settings.models = models ? &*models : nullptr;
+        if (telling(progress))
+            settings.progress = [](const std::string& what) { std::cerr << "partloc: " << what << std::endl; };
         result = run_job(job, settings);
     } catch (const std::invalid_argument& e) {
         return complain(job_file + ": " + e.what(), kBadInput);

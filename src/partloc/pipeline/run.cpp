@@ -8,10 +8,12 @@
 #include <algorithm>
 #include <chrono>
 #include <exception>
+#include <mutex>
 #include <optional>
 #include <stdexcept>
 
 #include "partloc/core/cloud_stats.hpp"
+#include "partloc/core/format.hpp"
 #include "partloc/core/register_scan.hpp"
 #include "partloc/core/stock.hpp"
 #include "partloc/pipeline/part.hpp"
@@ -263,7 +265,12 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         return std::move(result);
     };
 
+    const auto tell = [&](const std::string& what) {
+        if (settings.progress) settings.progress(what);
+    };
+
     // Prepare: each scan's scale, the global fit's sampling, the fiducials' models, the workpiece's region.
+    tell(format("preparing %zu fiducial models and measuring %zu scans", job.fiducials.size(), job.scans.size()));
     const JobPreparation prep = prepare_job(job, settings);
 
     // Register the scans (§3.4.1, in parallel; each scan's outcome depends on that scan alone).
@@ -271,11 +278,22 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     std::vector<ScanRegistration> regs(n);
     std::vector<ScanEvidence> evidence(n);
     std::vector<double> seconds(n, 0.0);
+    std::mutex told;
+    std::size_t finished = 0;
+    tell(format("registering %zu scans", n));
     tbb::parallel_for(std::size_t(0), n, [&](std::size_t i) {
         const auto ts = Clock::now();
         register_one(job, prep, config, i, regs[i], evidence[i]);
         seconds[i] = seconds_since(ts);
+        if (!settings.progress) return;
+        std::string names;
+        for (const std::size_t k : regs[i].fiducials) names += (names.empty() ? "" : ",") + job.fiducials[k].name;
+        const std::lock_guard<std::mutex> lock(told);
+        ++finished;
+        tell(format("scan %zu of %zu (%s, %.1f s): ", finished, n, job.scans[i].file.c_str(), seconds[i]) +
+             (regs[i].valid ? "placed by fiducials " + names : "not placed: " + regs[i].reason));
     });
+    tell("locating the part");
 
     // Locate the part (§3.4.2): choose the scans, merge them, fit the reference surfaces.
     PartInputs in;
@@ -333,6 +351,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     w.T_machine_workpiece = T_located_nominal * job.workpiece.T_machine_workpiece;
 
     // Estimate the uncertainty (pipeline/uncertainty.hpp).
+    tell("estimating the uncertainty");
     UncertaintyInputs ui = uncertainty_inputs(job, regs, evidence, part, config);
     ui.reference = &reference;
     ui.T_located_nominal = T_located_nominal;
@@ -347,6 +366,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     estimate_uncertainty(job, ui, w);
 
     // Build the outputs: the final part moved by the located pose, merged.ply's points and the stock.
+    tell("building the outputs");
     if (job.workpiece.final_part && job.workpiece.final_part->mesh) {
         auto located = std::make_shared<open3d::geometry::TriangleMesh>(*job.workpiece.final_part->mesh);
         located->Transform(T_located_nominal.matrix());

@@ -2,6 +2,7 @@
 // The whole job (paper §3.4): localize each scan by its fiducials (processor), merge the registered scans,
 // fit the nominal reference surfaces (part) and build the stock and the located final part.
 #include <cstdint>
+#include <functional>
 #include <string>
 
 #include "partloc/core/localize.hpp"
@@ -30,6 +31,9 @@ struct RunSettings {
     Config config;           ///< every tuning constant (pipeline/config.hpp)
     /// Prepared fiducial models kept between jobs; null: each job prepares its own (prepare_model).
     ModelStore* models = nullptr;
+    /// Told, in a sentence, of each stage as it starts and of each scan as its registration ends (from the
+    /// worker threads, one call at a time); never changes a result. Empty: nothing is told.
+    std::function<void(const std::string&)> progress;
 };
 
 /// What every scan and fiducial of a job share before any scan is registered: run_job's first step.
