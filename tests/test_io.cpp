@@ -873,3 +873,20 @@ TEST(Outputs, ReportIsSelfContainedEscapedAndDrawsThreeViews) {
     EXPECT_NE(html.find("-0.100"), std::string::npos);  // the deviation in X, mm to 3 decimals
     EXPECT_EQ(escape_html("a<b>&\"'"), "a&lt;b&gt;&amp;&quot;&#39;");
 }
+
+TEST(Outputs, WarningsAreListedInResultJsonAndTheReportShowsThemInAmber) {
+    const Job job = small_job();
+    JobResult result = located_result(job);
+    const std::string plain = render_report_html(job, result, {"job.yaml", 3000});
+    EXPECT_NE(plain.find("banner ok"), std::string::npos);
+    EXPECT_TRUE(nlohmann::json::parse(result_json(job, result)).at("warnings").empty());
+    result.warnings = {"scans/s1.ply: fiducial C is left out: it lies 0.5 mm from where A and B put it"};
+    const auto j = nlohmann::json::parse(result_json(job, result));
+    EXPECT_EQ(j.at("status"), "located");  // still located, and listed
+    ASSERT_EQ(j.at("warnings").size(), 1u);
+    EXPECT_EQ(j.at("warnings")[0], result.warnings[0]);
+    const std::string html = render_report_html(job, result, {"job.yaml", 3000});
+    EXPECT_NE(html.find("banner warn"), std::string::npos);
+    EXPECT_EQ(html.find("banner ok"), std::string::npos);
+    EXPECT_NE(html.find("fiducial C is left out"), std::string::npos);
+}

@@ -143,6 +143,15 @@ TEST(PartFit, AScanWhoseRegistrationIsFarLessCertainIsLeftOutOfIt) {
         }
     }
     EXPECT_EQ(left_out, 1);
+    // The job's warnings (SPEC "Status with warnings") repeat every scan's, named by the scan.
+    std::size_t scan_warnings = 0;
+    for (const auto& r : d.result.scans)
+        for (const auto& w : r.warnings) {
+            ++scan_warnings;
+            EXPECT_NE(std::find(d.result.warnings.begin(), d.result.warnings.end(), r.file + ": " + w),
+                      d.result.warnings.end());
+        }
+    EXPECT_EQ(d.result.warnings.size(), scan_warnings);
     EXPECT_LT(d.error.translation, 0.04);
     EXPECT_LT(d.error.rotation_deg, 0.03);
 }

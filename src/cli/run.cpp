@@ -73,6 +73,14 @@ void print_summary(std::ostream& out, const std::string& job_file, const Job& jo
         << triple(w.T_machine_workpiece.translation() - nominal.translation(), d) << " " << u << " ("
         << fixed(e.translation, d) << "), rotation " << fixed(e.rotation_deg, 3) << " deg\n";
     out << "  fit rmse " << fixed(w.rmse, d) << " " << u << " over " << w.points << " points\n";
+    if (w.uncertainty.available)
+        out << "  uncertainty_95: origin +- " << triple(w.uncertainty.origin, d) << " " << u << ", euler +- "
+            << triple(w.uncertainty.euler_deg, 3) << " deg\n";
+    if (!result.warnings.empty()) {
+        out << "  located WITH " << result.warnings.size() << " WARNING" << (result.warnings.size() > 1 ? "S" : "")
+            << ": look at " << (result.warnings.size() > 1 ? "them" : "it") << " before cutting\n";
+        for (const auto& warning : result.warnings) out << "  warning: " << warning << "\n";
+    }
 }
 
 }  // namespace

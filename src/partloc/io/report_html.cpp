@@ -181,6 +181,7 @@ th,td{border:1px solid #ddd;padding:3px 8px;text-align:left;vertical-align:top}
 th{background:#f2f2f2} td.num{text-align:right;font-variant-numeric:tabular-nums}
 .banner{padding:10px 14px;border-radius:4px;font-size:1.15em;margin:12px 0}
 .ok{background:#e3f4e3;border:1px solid #7cbf7c} .bad{background:#fbe4e4;border:1px solid #d98c8c}
+.warn{background:#fff4d6;border:1px solid #e0a526}
 .reg{color:#1b7a1b;font-weight:600} .rej{color:#b22222;font-weight:600} .dim{color:#777}
 figure{display:inline-block;margin:0 12px 12px 0} figcaption{text-align:center;font-size:0.9em;color:#555}
 )";
@@ -219,7 +220,12 @@ static void pose_section(std::ostream& h, const Job& job, const JobResult& resul
     const WorkpieceResult& w = result.workpiece;
     std::size_t registered = 0;
     for (const auto& s : result.scans) registered += s.valid ? 1 : 0;
-    if (result.workpiece.valid) {
+    if (result.workpiece.valid && !result.warnings.empty()) {
+        h << "<div class='banner warn'><b>Workpiece located, with warnings</b> from " << registered << " of "
+          << result.scans.size() << " scans: look at them before cutting.<ul>";
+        for (const auto& warning : result.warnings) h << "<li>" << escape_html(warning) << "</li>";
+        h << "</ul></div>\n";
+    } else if (result.workpiece.valid) {
         h << "<div class='banner ok'><b>Workpiece located</b> from " << registered << " of "
           << result.scans.size() << " scans.</div>\n";
     } else {

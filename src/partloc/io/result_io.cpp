@@ -207,6 +207,7 @@ std::string result_json(const Job& job, const JobResult& result) {
     j["scans"] = scans;
     j["workpiece"] = workpiece_json(job, result.workpiece);
     j["probed_poses"] = probed_json(job);
+    j["warnings"] = result.warnings;
     j["seconds"] = number(result.seconds);
     return compact_number_arrays(j.dump(2)) + "\n";
 }

@@ -261,6 +261,8 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     w.fit = job.workpiece.fit == WorkpieceFitMode::Datums ? "datums" : "simultaneous";
     const auto done = [&](std::string reason) {
         w.reason = std::move(reason);
+        for (const ScanResult& r : result.scans)
+            for (const std::string& warning : r.warnings) result.warnings.push_back(r.file + ": " + warning);
         result.seconds = seconds_since(t0);
         return std::move(result);
     };
