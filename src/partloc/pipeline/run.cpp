@@ -248,6 +248,29 @@ JobPreparation prepare_job(const Job& job, const RunSettings& settings) {
     return p;
 }
 
+/// Registers every scan (in parallel; each scan's outcome depends on that scan alone), telling each one's
+/// end to settings.progress.
+void register_scans(const Job& job, const JobPreparation& prep, const RunSettings& settings,
+                    std::vector<ScanRegistration>& regs, std::vector<ScanEvidence>& evidence,
+                    std::vector<double>& seconds) {
+    const std::size_t n = job.scans.size();
+    std::mutex told;
+    std::size_t finished = 0;
+    if (settings.progress) settings.progress(format("registering %zu scans", n));
+    tbb::parallel_for(std::size_t(0), n, [&](std::size_t i) {
+        const auto ts = Clock::now();
+        register_one(job, prep, settings.config, i, regs[i], evidence[i]);
+        seconds[i] = seconds_since(ts);
+        if (!settings.progress) return;
+        std::string names;
+        for (const std::size_t k : regs[i].fiducials) names += (names.empty() ? "" : ",") + job.fiducials[k].name;
+        const std::lock_guard<std::mutex> lock(told);
+        ++finished;
+        settings.progress(format("scan %zu of %zu (%s, %.1f s): ", finished, n, job.scans[i].file.c_str(), seconds[i]) +
+                          (regs[i].valid ? "placed by fiducials " + names : "not placed: " + regs[i].reason));
+    });
+}
+
 JobResult run_job(const Job& job, const RunSettings& settings) {
     const auto t0 = Clock::now();
     std::optional<tbb::global_control> threads;
@@ -280,21 +303,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     std::vector<ScanRegistration> regs(n);
     std::vector<ScanEvidence> evidence(n);
     std::vector<double> seconds(n, 0.0);
-    std::mutex told;
-    std::size_t finished = 0;
-    tell(format("registering %zu scans", n));
-    tbb::parallel_for(std::size_t(0), n, [&](std::size_t i) {
-        const auto ts = Clock::now();
-        register_one(job, prep, config, i, regs[i], evidence[i]);
-        seconds[i] = seconds_since(ts);
-        if (!settings.progress) return;
-        std::string names;
-        for (const std::size_t k : regs[i].fiducials) names += (names.empty() ? "" : ",") + job.fiducials[k].name;
-        const std::lock_guard<std::mutex> lock(told);
-        ++finished;
-        tell(format("scan %zu of %zu (%s, %.1f s): ", finished, n, job.scans[i].file.c_str(), seconds[i]) +
-             (regs[i].valid ? "placed by fiducials " + names : "not placed: " + regs[i].reason));
-    });
+    register_scans(job, prep, settings, regs, evidence, seconds);
     tell("locating the part");
 
     // Locate the part (§3.4.2): choose the scans, merge them, fit the reference surfaces.
