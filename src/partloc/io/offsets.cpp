@@ -158,7 +158,9 @@ WorkOffsetFile siemens(const Eigen::Isometry3d& T, const OffsetSettings& s) {
     o << (s.inch ? "G700" : "G710") << "\n";
     o << "$P_UIFR[" << s.work_offset << "] = CTRANS(X," << X << ",Y," << Y << ",Z," << Z << ") : CROT(X," << A
       << ",Y," << B << ",Z," << C << ")\n";
-    o << "; active with " << g_code_for(OffsetDialect::Siemens, s.work_offset) << "\n";
+    o << "; active with " << g_code_for(OffsetDialect::Siemens, s.work_offset)
+      << (s.work_offset > 4 ? " (needs MD28080 $MC_MM_NUM_USER_FRAMES > " + std::to_string(s.work_offset) + ")" : "")
+      << "\n";
     o << "M30\n";
     f.text = o.str();
     return f;
