@@ -402,3 +402,48 @@ TEST(Offsets, JobFieldsAreChecked) {
     EXPECT_EQ(j.output.offsets, (std::vector<std::string>{"siemens", "linuxcnc"}));
     EXPECT_EQ(j.output.work_offset, 6);
 }
+
+TEST(Offsets, JobUnitsBecomeMillimetresOrInchesAndTheFarCornerIsTheBoxes) {
+    // A part 200 x 100 x 50 mm, given in metres, its datum frame at (10, 0, 0) m turned 90 degrees about Z.
+    const Eigen::Isometry3d nominal = frame(Eigen::Vector3d(10, 0, 0), Rz(90));
+    auto part = std::make_shared<open3d::geometry::TriangleMesh>();
+    for (int i = 0; i < 8; ++i)
+        part->vertices_.push_back(nominal * Eigen::Vector3d(0.2 * (i & 1), 0.1 * ((i >> 1) & 1), 0.05 * (i >> 2)));
+    part->triangles_.push_back({0, 1, 2});
+    for (const std::string units : {"m", "in"}) {
+        Job job;
+        job.units = units;
+        job.workpiece.T_machine_workpiece = nominal;
+        job.workpiece.final_part = ModelSource{"part.stl", part, nullptr};
+        job.output.offsets = {"fanuc", "linuxcnc"};
+        job.output.work_offset = 3;
+        JobResult result;
+        result.units = units;
+        result.workpiece.valid = true;
+        result.workpiece.T_machine_workpiece_nominal = nominal;
+        result.workpiece.T_machine_workpiece = frame(Eigen::Vector3d(10.001, 0.002, -0.001), Rx(0.5) * Rz(90.2));
+        const io::WorkOffsets w = io::work_offsets(job, result);
+        ASSERT_TRUE(w.written);
+        EXPECT_EQ(w.units, units == "in" ? "in" : "mm");
+        EXPECT_LT((w.far_corner - Eigen::Vector3d(0.2, 0.1, 0.05)).norm(), 1e-12) << w.far_corner.transpose();
+        ASSERT_EQ(w.files.size(), 2u);
+        const double mm = units == "in" ? 25.4 : 1000.0;  // millimetres per job unit
+        Eigen::Isometry3d T_mm = result.workpiece.T_machine_workpiece;
+        T_mm.translation() *= mm;
+        const Eigen::Vector3d corner_mm = w.far_corner * mm;
+        for (const auto& f : w.files) {
+            const Read r = read_back(f.dialect, f.text);
+            ASSERT_TRUE(r.ok) << f.text;
+            EXPECT_EQ(r.number, 3);
+            EXPECT_LT((r.T_mm.translation() - T_mm.translation()).norm(), 1e-6) << f.text;
+            const double real_mm = (r.T_mm * corner_mm - T_mm * corner_mm).norm();
+            EXPECT_NEAR(f.error_at_far_corner * (units == "in" ? 25.4 : 1.0), real_mm, 1e-6) << f.text;
+        }
+        // result.json's numbers are in the job's units.
+        const auto j = nlohmann::json::parse(io::work_offsets_json(job, result));
+        EXPECT_NEAR(j["files"]["linuxcnc"]["error_at_far_corner"].get<double>() * mm,
+                    (read_back(OffsetDialect::LinuxCnc, w.files[1].text).T_mm * corner_mm - T_mm * corner_mm).norm(),
+                    1e-6);
+        EXPECT_NEAR(j["far_corner"][0].get<double>(), 0.2, 1e-9);
+    }
+}
