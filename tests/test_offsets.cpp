@@ -63,9 +63,12 @@ std::map<std::string, double> words(const std::string& line) {
     std::string s;
     int depth = 0;
     for (char c : line) {
-        if (c == '(') ++depth;
-        else if (c == ')') --depth;
-        else if (depth == 0) s += c;
+        if (c == '(')
+            ++depth;
+        else if (c == ')')
+            --depth;
+        else if (depth == 0)
+            s += c;
     }
     std::map<std::string, double> w;
     static const std::regex word(R"(([A-Za-z])\s*([-+]?[0-9]*\.?[0-9]+))");
@@ -196,10 +199,14 @@ Read read_linuxcnc(const std::string& text) {
 
 Read read_back(OffsetDialect d, const std::string& text) {
     switch (d) {
-        case OffsetDialect::Fanuc: return read_fanuc(text);
-        case OffsetDialect::Siemens: return read_siemens(text);
-        case OffsetDialect::Heidenhain: return read_heidenhain(text);
-        case OffsetDialect::LinuxCnc: return read_linuxcnc(text);
+        case OffsetDialect::Fanuc:
+            return read_fanuc(text);
+        case OffsetDialect::Siemens:
+            return read_siemens(text);
+        case OffsetDialect::Heidenhain:
+            return read_heidenhain(text);
+        case OffsetDialect::LinuxCnc:
+            return read_linuxcnc(text);
     }
     return {};
 }
@@ -211,7 +218,8 @@ double rotation_deg(const Eigen::Matrix3d& A, const Eigen::Matrix3d& B) {
 /// The error the file's comment states at the far corner (its own units).
 double stated_error(const std::string& text) {
     std::smatch m;
-    if (!std::regex_search(text, m, std::regex(R"(error at the part's far corner \[[^\]]*\] \w+: ([0-9.]+))")))
+    if (!std::regex_search(text, m,
+                           std::regex(R"(error at the part's far corner \[[^\]]*\] \w+: ([0-9.]+))")))
         return -1;
     return std::stod(m[1]);
 }
@@ -228,10 +236,10 @@ std::vector<Eigen::Isometry3d> frames() {
     for (int i = 0; i < 40; ++i)
         out.push_back(frame(Eigen::Vector3d(pos(rng), pos(rng), pos(rng)),
                             Rz(ang(rng)) * Ry(ang(rng) / 2) * Rx(ang(rng))));
-    const double special[][3] = {{0, 0, 0},          {0.3, -0.2, 0.1},    {0, 90, 0},          {10, 89.9999999, -20},
-                                 {5, -90, 30},       {179.9999, 0, 0},    {-179.9999, 0.5, 180}, {180, 0, 0},
-                                 {0, 0, 180},        {0, 0, -179.99999},  {90, 0, 90},        {-90, 45, -90},
-                                 {0.0000001, 0, 0}, {180, 1e-7, -1e-7}};
+    const double special[][3] = {
+        {0, 0, 0},        {0.3, -0.2, 0.1},      {0, 90, 0},        {10, 89.9999999, -20}, {5, -90, 30},
+        {179.9999, 0, 0}, {-179.9999, 0.5, 180}, {180, 0, 0},       {0, 0, 180},           {0, 0, -179.99999},
+        {90, 0, 90},      {-90, 45, -90},        {0.0000001, 0, 0}, {180, 1e-7, -1e-7}};
     for (const auto& e : special)
         out.push_back(frame(Eigen::Vector3d(pos(rng), pos(rng), pos(rng)), Rz(e[2]) * Ry(e[1]) * Rx(e[0])));
     return out;
@@ -254,11 +262,12 @@ TEST(Offsets, EachDialectReadBackGivesThePlacedFrame) {
                 const Read r = read_back(d, f.text);
                 ASSERT_TRUE(r.ok) << io::dialect_name(d) << "\n" << f.text;
                 EXPECT_EQ(r.number, s.work_offset) << io::dialect_name(d);
-                EXPECT_LT((r.T_mm.translation() - T_mm.translation()).norm(), 1e-6) << io::dialect_name(d) << "\n"
-                                                                                  << f.text;
+                EXPECT_LT((r.T_mm.translation() - T_mm.translation()).norm(), 1e-6)
+                    << io::dialect_name(d) << "\n"
+                    << f.text;
                 if (d == OffsetDialect::LinuxCnc && !about_z_only) continue;
                 EXPECT_LT(rotation_deg(r.T_mm.linear(), T_mm.linear()), 1e-6) << io::dialect_name(d) << "\n"
-                                                                            << f.text;
+                                                                              << f.text;
             }
         }
     }
@@ -316,7 +325,8 @@ TEST(Offsets, RotaryAxisSquaresThePart) {
     const Eigen::Matrix3d R_dev = located.linear() * nominal.linear().transpose();
     const double left = Eigen::AngleAxisd(Rx(r.value_deg) * R_dev).angle() / kDeg;
     EXPECT_NEAR(left, r.tilt_left_angle_deg, 1e-9);
-    for (double d : {-0.01, 0.01}) EXPECT_GT(Eigen::AngleAxisd(Rx(r.value_deg + d) * R_dev).angle() / kDeg, left);
+    for (double d : {-0.01, 0.01})
+        EXPECT_GT(Eigen::AngleAxisd(Rx(r.value_deg + d) * R_dev).angle() / kDeg, left);
     EXPECT_NEAR(r.tilt_left_angle_deg, std::hypot(0.42, 0.23), 0.01);
     // A pure turn about A is squared exactly.
     const Eigen::Isometry3d turned = a.motion(7.5) * nominal;
@@ -334,11 +344,12 @@ TEST(Offsets, RunWritesTheFilesOfResultJsonsPose) {
         return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
     };
     ASSERT_EQ(sh("'" PARTLOC_EXE "' simulate --out '" + cell.string() + "' --seed 3 > /dev/null 2>&1"), 0);
-    test::spit(cell / "job.yaml", test::slurp(cell / "job.yaml") +
-                                      "\noutput: {offsets: [fanuc, siemens, heidenhain, linuxcnc], work_offset: 2}\n");
+    test::spit(cell / "job.yaml",
+               test::slurp(cell / "job.yaml") +
+                   "\noutput: {offsets: [fanuc, siemens, heidenhain, linuxcnc], work_offset: 2}\n");
     ASSERT_EQ(sh("PARTLOC_CACHE='" + (tmp.dir / "cache").string() + "' '" PARTLOC_EXE "' run '" +
-                 (cell / "job.yaml").string() + "' --out '" + out.string() + "' --threads 2 > '" + log.string() +
-                 "' 2>&1"),
+                 (cell / "job.yaml").string() + "' --out '" + out.string() + "' --threads 2 > '" +
+                 log.string() + "' 2>&1"),
               0)
         << test::slurp(log);
     const auto result = nlohmann::json::parse(test::slurp(out / "result.json"));
@@ -346,7 +357,8 @@ TEST(Offsets, RunWritesTheFilesOfResultJsonsPose) {
     const double mm = partloc::millimetres_per_unit(result["units"].get<std::string>());
     Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
     for (int r = 0; r < 3; ++r)
-        for (int c = 0; c < 4; ++c) T.matrix()(r, c) = result["workpiece"]["T_machine_workpiece"][r][c].get<double>();
+        for (int c = 0; c < 4; ++c)
+            T.matrix()(r, c) = result["workpiece"]["T_machine_workpiece"][r][c].get<double>();
     T.translation() *= mm;
     const auto& offsets = result["offsets"];
     ASSERT_TRUE(offsets["written"].get<bool>()) << offsets.dump();
@@ -386,8 +398,10 @@ TEST(Offsets, RunWritesTheFilesOfResultJsonsPose) {
 TEST(Offsets, JobFieldsAreChecked) {
     test::TempFolder tmp("partloc_offsets_job");
     const fs::path cell = tmp.dir / "cell";
-    ASSERT_EQ(std::system(("'" PARTLOC_EXE "' simulate --out '" + cell.string() + "' --seed 3 > /dev/null 2>&1").c_str()),
-              0);
+    ASSERT_EQ(
+        std::system(
+            ("'" PARTLOC_EXE "' simulate --out '" + cell.string() + "' --seed 3 > /dev/null 2>&1").c_str()),
+        0);
     const std::string job = test::slurp(cell / "job.yaml");
     test::spit(cell / "a.yaml", job + "\noutput: {offsets: [fanuc, mazak]}\n");
     test::expect_job_error(cell / "a.yaml", "output.offsets[1]: unknown dialect 'mazak'");
@@ -408,7 +422,8 @@ TEST(Offsets, JobUnitsBecomeMillimetresOrInchesAndTheFarCornerIsTheBoxes) {
     const Eigen::Isometry3d nominal = frame(Eigen::Vector3d(10, 0, 0), Rz(90));
     auto part = std::make_shared<open3d::geometry::TriangleMesh>();
     for (int i = 0; i < 8; ++i)
-        part->vertices_.push_back(nominal * Eigen::Vector3d(0.2 * (i & 1), 0.1 * ((i >> 1) & 1), 0.05 * (i >> 2)));
+        part->vertices_.push_back(nominal *
+                                  Eigen::Vector3d(0.2 * (i & 1), 0.1 * ((i >> 1) & 1), 0.05 * (i >> 2)));
     part->triangles_.push_back({0, 1, 2});
     for (const std::string units : {"m", "in"}) {
         Job job;
@@ -421,7 +436,8 @@ TEST(Offsets, JobUnitsBecomeMillimetresOrInchesAndTheFarCornerIsTheBoxes) {
         result.units = units;
         result.workpiece.valid = true;
         result.workpiece.T_machine_workpiece_nominal = nominal;
-        result.workpiece.T_machine_workpiece = frame(Eigen::Vector3d(10.001, 0.002, -0.001), Rx(0.5) * Rz(90.2));
+        result.workpiece.T_machine_workpiece =
+            frame(Eigen::Vector3d(10.001, 0.002, -0.001), Rx(0.5) * Rz(90.2));
         const io::WorkOffsets w = io::work_offsets(job, result);
         ASSERT_TRUE(w.written);
         EXPECT_EQ(w.units, units == "in" ? "in" : "mm");
@@ -441,9 +457,10 @@ TEST(Offsets, JobUnitsBecomeMillimetresOrInchesAndTheFarCornerIsTheBoxes) {
         }
         // result.json's numbers are in the job's units.
         const auto j = nlohmann::json::parse(io::work_offsets_json(job, result));
-        EXPECT_NEAR(j["files"]["linuxcnc"]["error_at_far_corner"].get<double>() * mm,
-                    (read_back(OffsetDialect::LinuxCnc, w.files[1].text).T_mm * corner_mm - T_mm * corner_mm).norm(),
-                    1e-6);
+        EXPECT_NEAR(
+            j["files"]["linuxcnc"]["error_at_far_corner"].get<double>() * mm,
+            (read_back(OffsetDialect::LinuxCnc, w.files[1].text).T_mm * corner_mm - T_mm * corner_mm).norm(),
+            1e-6);
         EXPECT_NEAR(j["far_corner"][0].get<double>(), 0.2, 1e-9);
     }
 }

@@ -290,8 +290,9 @@ void JobParser::parse(const YAML::Node& root, Job& job, std::vector<FileTask>& t
     if (!root.IsMap())
         throw InputError(job_name_, "expected a mapping with units, fiducials, workpiece and scans, found " +
                                         describe(root));
-    check_map(root, "",
-              {"units", "scanner", "machine", "fiducials", "workpiece", "scans", "output", "name", "description"});
+    check_map(
+        root, "",
+        {"units", "scanner", "machine", "fiducials", "workpiece", "scans", "output", "name", "description"});
 
     if (root["units"].IsDefined()) {
         job_mm_per_unit_ = unit_scale(root["units"], "units");
@@ -431,8 +432,8 @@ void JobParser::parse(const YAML::Node& root, Job& job, std::vector<FileTask>& t
         if (const YAML::Node d = o["offsets"]; d.IsDefined() && !d.IsNull()) {
             const char* known = "fanuc, siemens, heidenhain, linuxcnc";
             if (!d.IsSequence())
-                fail(d, "output.offsets", std::string("expected a list of dialects (") + known + "), found " +
-                                              describe(d));
+                fail(d, "output.offsets",
+                     std::string("expected a list of dialects (") + known + "), found " + describe(d));
             for (std::size_t i = 0; i < d.size(); ++i) {
                 const std::string at = "output.offsets[" + std::to_string(i) + "]";
                 const std::string name = text(d[i], at);
@@ -448,8 +449,8 @@ void JobParser::parse(const YAML::Node& root, Job& job, std::vector<FileTask>& t
             const double v = number(n, "output.work_offset");
             if (v != std::floor(v) || v < 1 || v > kMaxWorkOffset)
                 fail(n, "output.work_offset",
-                     "must be a whole number from 1 (G54, the first preset) to " + std::to_string(kMaxWorkOffset) +
-                         " (G59), found " + describe(n));
+                     "must be a whole number from 1 (G54, the first preset) to " +
+                         std::to_string(kMaxWorkOffset) + " (G59), found " + describe(n));
             job.output.work_offset = static_cast<int>(v);
         }
     }

@@ -79,7 +79,8 @@ std::vector<std::string> header(OffsetDialect d, const OffsetSettings& s, const 
                                 const std::string& cannot, double error, const std::string& what) {
     const std::string u = s.inch ? "in" : "mm";
     std::vector<std::string> lines = {
-        "partloc work offset " + std::to_string(s.work_offset) + ", " + g_code_for(d, s.work_offset) + ": " + what,
+        "partloc work offset " + std::to_string(s.work_offset) + ", " + g_code_for(d, s.work_offset) + ": " +
+            what,
         "the workpiece frame T_machine_workpiece, machine coordinates with every axis at 0",
         "units: " + unit_line + "; " + std::to_string(length_decimals(s.inch)) +
             " decimals, round to the control's input increment",
@@ -108,7 +109,8 @@ WorkOffsetFile fanuc(const Eigen::Isometry3d& T, const OffsetSettings& s) {
     const std::string X = fixed(t.x(), dl), Y = fixed(t.y(), dl), Z = fixed(t.z(), dl);
     const std::string I = fixed(e.x(), kAngleDecimals), J = fixed(e.y(), kAngleDecimals),
                       K = fixed(e.z(), kAngleDecimals);
-    f.T_machine_workpiece_written.translation() = Eigen::Vector3d(as_written(X), as_written(Y), as_written(Z));
+    f.T_machine_workpiece_written.translation() =
+        Eigen::Vector3d(as_written(X), as_written(Y), as_written(Z));
     f.T_machine_workpiece_written.linear() = rot(Eigen::Vector3d::UnitZ(), as_written(I)) *
                                              rot(Eigen::Vector3d::UnitX(), as_written(J)) *
                                              rot(Eigen::Vector3d::UnitZ(), as_written(K));
@@ -122,11 +124,11 @@ WorkOffsetFile fanuc(const Eigen::Isometry3d& T, const OffsetSettings& s) {
     f.error_at_far_corner = corner_error(f.T_machine_workpiece_written, T, s.far_corner);
     std::ostringstream o;
     o << "%\nO0001 " << fanuc_comment("PARTLOC WORK OFFSET") << "\n";
-    for (const auto& line :
-         header(OffsetDialect::Fanuc, s, s.inch ? "inch, G20" : "mm, G21", f.cannot_represent,
-                f.error_at_far_corner, "G10 L2 and G68.2"))
+    for (const auto& line : header(OffsetDialect::Fanuc, s, s.inch ? "inch, G20" : "mm, G21",
+                                   f.cannot_represent, f.error_at_far_corner, "G10 L2 and G68.2"))
         o << fanuc_comment(line) << "\n";
-    o << fanuc_comment("G68.2 X Y Z I J K: Euler angles, about Z by I, the new X by J, the new Z by K") << "\n";
+    o << fanuc_comment("G68.2 X Y Z I J K: Euler angles, about Z by I, the new X by J, the new Z by K")
+      << "\n";
     o << (s.inch ? "G20" : "G21") << "\n";
     o << "G90 G10 L2 P" << s.work_offset << " X" << X << " Y" << Y << " Z" << Z << "\n";
     o << g_code_for(OffsetDialect::Fanuc, s.work_offset) << "\n";
@@ -145,7 +147,8 @@ WorkOffsetFile siemens(const Eigen::Isometry3d& T, const OffsetSettings& s) {
     const std::string X = fixed(t.x(), dl), Y = fixed(t.y(), dl), Z = fixed(t.z(), dl);
     const std::string A = fixed(e.x(), kAngleDecimals), B = fixed(e.y(), kAngleDecimals),
                       C = fixed(e.z(), kAngleDecimals);
-    f.T_machine_workpiece_written.translation() = Eigen::Vector3d(as_written(X), as_written(Y), as_written(Z));
+    f.T_machine_workpiece_written.translation() =
+        Eigen::Vector3d(as_written(X), as_written(Y), as_written(Z));
     f.T_machine_workpiece_written.linear() =
         rotation_from_euler_xyz_deg(Eigen::Vector3d(as_written(A), as_written(B), as_written(C)));
     f.error_at_far_corner = corner_error(f.T_machine_workpiece_written, T, s.far_corner);
@@ -159,7 +162,9 @@ WorkOffsetFile siemens(const Eigen::Isometry3d& T, const OffsetSettings& s) {
     o << "$P_UIFR[" << s.work_offset << "] = CTRANS(X," << X << ",Y," << Y << ",Z," << Z << ") : CROT(X," << A
       << ",Y," << B << ",Z," << C << ")\n";
     o << "; active with " << g_code_for(OffsetDialect::Siemens, s.work_offset)
-      << (s.work_offset > 4 ? " (needs MD28080 $MC_MM_NUM_USER_FRAMES > " + std::to_string(s.work_offset) + ")" : "")
+      << (s.work_offset > 4
+              ? " (needs MD28080 $MC_MM_NUM_USER_FRAMES > " + std::to_string(s.work_offset) + ")"
+              : "")
       << "\n";
     o << "M30\n";
     f.text = o.str();
@@ -174,7 +179,8 @@ WorkOffsetFile heidenhain(const Eigen::Isometry3d& T, const OffsetSettings& s) {
     const std::string X = fixed(t.x(), dl, true), Y = fixed(t.y(), dl, true), Z = fixed(t.z(), dl, true);
     const std::string A = fixed(e.x(), kAngleDecimals, true), B = fixed(e.y(), kAngleDecimals, true),
                       C = fixed(e.z(), kAngleDecimals, true);
-    f.T_machine_workpiece_written.translation() = Eigen::Vector3d(as_written(X), as_written(Y), as_written(Z));
+    f.T_machine_workpiece_written.translation() =
+        Eigen::Vector3d(as_written(X), as_written(Y), as_written(Z));
     f.T_machine_workpiece_written.linear() =
         rotation_from_euler_xyz_deg(Eigen::Vector3d(as_written(A), as_written(B), as_written(C)));
     f.error_at_far_corner = corner_error(f.T_machine_workpiece_written, T, s.far_corner);
@@ -185,7 +191,8 @@ WorkOffsetFile heidenhain(const Eigen::Isometry3d& T, const OffsetSettings& s) {
     std::vector<std::string> lines = header(OffsetDialect::Heidenhain, s, s.inch ? "inch" : "mm", "",
                                             f.error_at_far_corner, "preset table row");
     lines.push_back("enter this row in the preset table TNC:\\table\\preset.pr; cycle 247 activates it");
-    lines.push_back("SPA SPB SPC: 3D basic rotation, spatial angles about the fixed machine axes, A then B then C");
+    lines.push_back(
+        "SPA SPB SPC: 3D basic rotation, spatial angles about the fixed machine axes, A then B then C");
     lines.push_back("on a rotary-table machine the control may refer presets to the table's centre: check");
     for (const auto& line : lines) o << block++ << " ; " << line << "\n";
     o << block++ << " ; PRESET NR=" << s.work_offset << " X=" << X << " Y=" << Y << " Z=" << Z << " SPA=" << A
@@ -204,7 +211,8 @@ WorkOffsetFile linuxcnc(const Eigen::Isometry3d& T, const OffsetSettings& s) {
     const double yaw = twist_deg(T.linear(), Eigen::Vector3d::UnitZ());
     const std::string X = fixed(t.x(), dl), Y = fixed(t.y(), dl), Z = fixed(t.z(), dl),
                       R = fixed(yaw, kAngleDecimals);
-    f.T_machine_workpiece_written.translation() = Eigen::Vector3d(as_written(X), as_written(Y), as_written(Z));
+    f.T_machine_workpiece_written.translation() =
+        Eigen::Vector3d(as_written(X), as_written(Y), as_written(Z));
     f.T_machine_workpiece_written.linear() = rot(Eigen::Vector3d::UnitZ(), as_written(R));
     const Eigen::AngleAxisd left(f.T_machine_workpiece_written.linear().transpose() * T.linear());
     f.error_at_far_corner = corner_error(f.T_machine_workpiece_written, T, s.far_corner);
@@ -255,17 +263,21 @@ Eigen::Vector3d far_corner(const ModelSource& m, const Eigen::Isometry3d& T_mach
 
 std::string dialect_name(OffsetDialect d) {
     switch (d) {
-        case OffsetDialect::Fanuc: return "fanuc";
-        case OffsetDialect::Siemens: return "siemens";
-        case OffsetDialect::Heidenhain: return "heidenhain";
-        case OffsetDialect::LinuxCnc: return "linuxcnc";
+        case OffsetDialect::Fanuc:
+            return "fanuc";
+        case OffsetDialect::Siemens:
+            return "siemens";
+        case OffsetDialect::Heidenhain:
+            return "heidenhain";
+        case OffsetDialect::LinuxCnc:
+            return "linuxcnc";
     }
     return "";
 }
 
 bool parse_dialect(const std::string& name, OffsetDialect& d) {
-    for (OffsetDialect c : {OffsetDialect::Fanuc, OffsetDialect::Siemens, OffsetDialect::Heidenhain,
-                            OffsetDialect::LinuxCnc})
+    for (OffsetDialect c :
+         {OffsetDialect::Fanuc, OffsetDialect::Siemens, OffsetDialect::Heidenhain, OffsetDialect::LinuxCnc})
         if (dialect_name(c) == name) {
             d = c;
             return true;
@@ -275,10 +287,14 @@ bool parse_dialect(const std::string& name, OffsetDialect& d) {
 
 std::string dialect_file(OffsetDialect d) {
     switch (d) {
-        case OffsetDialect::Fanuc: return "fanuc.nc";
-        case OffsetDialect::Siemens: return "siemens.mpf";
-        case OffsetDialect::Heidenhain: return "heidenhain.h";
-        case OffsetDialect::LinuxCnc: return "linuxcnc.ngc";
+        case OffsetDialect::Fanuc:
+            return "fanuc.nc";
+        case OffsetDialect::Siemens:
+            return "siemens.mpf";
+        case OffsetDialect::Heidenhain:
+            return "heidenhain.h";
+        case OffsetDialect::LinuxCnc:
+            return "linuxcnc.ngc";
     }
     return "";
 }
@@ -286,10 +302,18 @@ std::string dialect_file(OffsetDialect d) {
 WorkOffsetFile write_work_offset(OffsetDialect d, const Eigen::Isometry3d& T, const OffsetSettings& s) {
     WorkOffsetFile f;
     switch (d) {
-        case OffsetDialect::Fanuc: f = fanuc(T, s); break;
-        case OffsetDialect::Siemens: f = siemens(T, s); break;
-        case OffsetDialect::Heidenhain: f = heidenhain(T, s); break;
-        case OffsetDialect::LinuxCnc: f = linuxcnc(T, s); break;
+        case OffsetDialect::Fanuc:
+            f = fanuc(T, s);
+            break;
+        case OffsetDialect::Siemens:
+            f = siemens(T, s);
+            break;
+        case OffsetDialect::Heidenhain:
+            f = heidenhain(T, s);
+            break;
+        case OffsetDialect::LinuxCnc:
+            f = linuxcnc(T, s);
+            break;
     }
     f.dialect = d;
     f.file = dialect_file(d);
@@ -321,7 +345,8 @@ WorkOffsets work_offsets(const Job& job, const JobResult& result) {
     }
     const Eigen::Isometry3d& T = result.workpiece.T_machine_workpiece;
     const Eigen::Isometry3d& T_nominal = result.workpiece.T_machine_workpiece_nominal;
-    const ModelSource& part = job.workpiece.final_part ? *job.workpiece.final_part : job.workpiece.reference_surfaces;
+    const ModelSource& part =
+        job.workpiece.final_part ? *job.workpiece.final_part : job.workpiece.reference_surfaces;
     w.far_corner = far_corner(part, job.workpiece.T_machine_workpiece);
     const double scale = inch ? 1.0 : millimetres_per_unit(job.units);  // job units to file units
 
@@ -334,16 +359,18 @@ WorkOffsets work_offsets(const Job& job, const JobResult& result) {
         if (!a || a->type != AxisType::Rotary) continue;
         w.rotary.push_back(square_with_axis(*a, T, T_nominal));
         const RotaryAxisSquaring& r = w.rotary.back();
-        s.notes.push_back(format("rotary axis %s carries the part: %s = %.6f degrees squares it; the tilt left "
-                                 "is %.6f degrees, rotation vector [%.6f, %.6f, %.6f] degrees",
-                                 r.axis.c_str(), r.axis.c_str(), r.value_deg, r.tilt_left_angle_deg,
-                                 r.tilt_left_deg.x(), r.tilt_left_deg.y(), r.tilt_left_deg.z()));
-        s.notes.push_back(format("the offset in this file is for %s = 0; at %s = %.6f the origin is at "
-                                 "[%.6f, %.6f, %.6f] %s",
-                                 r.axis.c_str(), r.axis.c_str(), r.value_deg,
-                                 r.T_machine_workpiece_at_value.translation().x() * scale,
-                                 r.T_machine_workpiece_at_value.translation().y() * scale,
-                                 r.T_machine_workpiece_at_value.translation().z() * scale, w.units.c_str()));
+        s.notes.push_back(
+            format("rotary axis %s carries the part: %s = %.6f degrees squares it; the tilt left "
+                   "is %.6f degrees, rotation vector [%.6f, %.6f, %.6f] degrees",
+                   r.axis.c_str(), r.axis.c_str(), r.value_deg, r.tilt_left_angle_deg, r.tilt_left_deg.x(),
+                   r.tilt_left_deg.y(), r.tilt_left_deg.z()));
+        s.notes.push_back(
+            format("the offset in this file is for %s = 0; at %s = %.6f the origin is at "
+                   "[%.6f, %.6f, %.6f] %s",
+                   r.axis.c_str(), r.axis.c_str(), r.value_deg,
+                   r.T_machine_workpiece_at_value.translation().x() * scale,
+                   r.T_machine_workpiece_at_value.translation().y() * scale,
+                   r.T_machine_workpiece_at_value.translation().z() * scale, w.units.c_str()));
     }
     Eigen::Isometry3d T_file = T;
     T_file.translation() *= scale;
@@ -387,8 +414,8 @@ std::string work_offsets_json(const Job& job, const JobResult& result) {
 std::vector<fs::path> write_work_offsets(const fs::path& dir, const Job& job, const JobResult& result) {
     const WorkOffsets w = work_offsets(job, result);
     std::vector<fs::path> written;
-    for (OffsetDialect d : {OffsetDialect::Fanuc, OffsetDialect::Siemens, OffsetDialect::Heidenhain,
-                            OffsetDialect::LinuxCnc}) {
+    for (OffsetDialect d :
+         {OffsetDialect::Fanuc, OffsetDialect::Siemens, OffsetDialect::Heidenhain, OffsetDialect::LinuxCnc}) {
         const fs::path path = dir / "offsets" / dialect_file(d);
         bool made = false;
         for (const auto& f : w.files)

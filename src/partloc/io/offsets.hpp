@@ -24,11 +24,10 @@
 //   sets the origin of coordinate system n (G54..G59.3, P1..P9) "in terms of the not offset machine
 //   coordinate system", and R "the rotation of the XY axis around the Z": R = Rz(R). No rotation about X or
 //   Y can be given.
+#include <Eigen/Geometry>
 #include <filesystem>
 #include <string>
 #include <vector>
-
-#include <Eigen/Geometry>
 
 #include "partloc/pipeline/job.hpp"
 #include "partloc/pipeline/result.hpp"
@@ -79,7 +78,7 @@ struct RotaryAxisSquaring {
     /// The rotation left at that value (machine frame), as a rotation vector in degrees: perpendicular to
     /// the axis, its components are the tilts about the machine axes.
     Eigen::Vector3d tilt_left_deg = Eigen::Vector3d::Zero();
-    double tilt_left_angle_deg = 0.0;  ///< its angle
+    double tilt_left_angle_deg = 0.0;                                                ///< its angle
     Eigen::Isometry3d T_machine_workpiece_at_value = Eigen::Isometry3d::Identity();  ///< job units
 };
 
@@ -91,8 +90,8 @@ RotaryAxisSquaring square_with_axis(const Axis& axis, const Eigen::Isometry3d& T
 /// Everything the job's output.offsets asks for: the files' texts, or why there are none.
 struct WorkOffsets {
     bool written = false;
-    std::string reason;           ///< why no files, when not written
-    std::string units = "mm";     ///< of the files: mm or in
+    std::string reason;                                    ///< why no files, when not written
+    std::string units = "mm";                              ///< of the files: mm or in
     Eigen::Vector3d far_corner = Eigen::Vector3d::Zero();  ///< workpiece frame, job units
     std::vector<WorkOffsetFile> files;
     std::vector<RotaryAxisSquaring> rotary;
