@@ -187,7 +187,7 @@ WorkOffsetFile heidenhain(const Eigen::Isometry3d& T, const OffsetSettings& s) {
     const std::string unit = s.inch ? "INCH" : "MM";
     std::ostringstream o;
     int block = 0;
-    o << block++ << " BEGIN PGM PARTLOC_OFFSET " << unit << "\n";
+    o << block++ << " BEGIN PGM heidenhain " << unit << "\n";
     std::vector<std::string> lines = header(OffsetDialect::Heidenhain, s, s.inch ? "inch" : "mm", "",
                                             f.error_at_far_corner, "preset table row");
     lines.push_back("enter this row in the preset table TNC:\\table\\preset.pr; cycle 247 activates it");
@@ -198,7 +198,7 @@ WorkOffsetFile heidenhain(const Eigen::Isometry3d& T, const OffsetSettings& s) {
     o << block++ << " ; PRESET NR=" << s.work_offset << " X=" << X << " Y=" << Y << " Z=" << Z << " SPA=" << A
       << " SPB=" << B << " SPC=" << C << "\n";
     o << block++ << " CYCL DEF 247 DATUM SETTING ~\n    Q339=+" << s.work_offset << " ;DATUM NUMBER\n";
-    o << block++ << " END PGM PARTLOC_OFFSET " << unit << "\n";
+    o << block++ << " END PGM heidenhain " << unit << "\n";
     f.text = o.str();
     return f;
 }
