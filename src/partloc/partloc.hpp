@@ -17,6 +17,7 @@
 #include "partloc/io/cloud_io.hpp"
 #include "partloc/io/input_error.hpp"
 #include "partloc/io/job_io.hpp"
+#include "partloc/io/offsets.hpp"
 #include "partloc/io/result_io.hpp"
 #include "partloc/pipeline/config.hpp"
 #include "partloc/pipeline/job.hpp"

@@ -17,6 +17,7 @@
 #include "partloc/core/geometry.hpp"
 #include "partloc/io/cloud_io.hpp"
 #include "partloc/io/formats.hpp"
+#include "partloc/io/offsets.hpp"
 
 namespace partloc::io {
 
@@ -289,8 +290,9 @@ void JobParser::parse(const YAML::Node& root, Job& job, std::vector<FileTask>& t
     if (!root.IsMap())
         throw InputError(job_name_, "expected a mapping with units, fiducials, workpiece and scans, found " +
                                         describe(root));
-    check_map(root, "",
-              {"units", "scanner", "machine", "fiducials", "workpiece", "scans", "name", "description"});
+    check_map(
+        root, "",
+        {"units", "scanner", "machine", "fiducials", "workpiece", "scans", "output", "name", "description"});
 
     if (root["units"].IsDefined()) {
         job_mm_per_unit_ = unit_scale(root["units"], "units");
@@ -423,6 +425,35 @@ void JobParser::parse(const YAML::Node& root, Job& job, std::vector<FileTask>& t
                          }});
     }
     job.probed_poses = probed_;
+
+    // output: the work-offset files (SPEC "Machining"); 1..6 is what all four dialects take (G54..G59).
+    if (const YAML::Node o = root["output"]; o.IsDefined() && !o.IsNull()) {
+        check_map(o, "output", {"offsets", "work_offset"});
+        if (const YAML::Node d = o["offsets"]; d.IsDefined() && !d.IsNull()) {
+            const char* known = "fanuc, siemens, heidenhain, linuxcnc";
+            if (!d.IsSequence())
+                fail(d, "output.offsets",
+                     std::string("expected a list of dialects (") + known + "), found " + describe(d));
+            for (std::size_t i = 0; i < d.size(); ++i) {
+                const std::string at = "output.offsets[" + std::to_string(i) + "]";
+                const std::string name = text(d[i], at);
+                OffsetDialect dialect;
+                if (!parse_dialect(name, dialect))
+                    fail(d[i], at, "unknown dialect '" + name + "' (known: " + known + ")");
+                for (const auto& n : job.output.offsets)
+                    if (n == name) fail(d[i], at, "dialect '" + name + "' named twice");
+                job.output.offsets.push_back(name);
+            }
+        }
+        if (const YAML::Node n = o["work_offset"]; n.IsDefined()) {
+            const double v = number(n, "output.work_offset");
+            if (v != std::floor(v) || v < 1 || v > kMaxWorkOffset)
+                fail(n, "output.work_offset",
+                     "must be a whole number from 1 (G54, the first preset) to " +
+                         std::to_string(kMaxWorkOffset) + " (G59), found " + describe(n));
+            job.output.work_offset = static_cast<int>(v);
+        }
+    }
 }
 
 std::string read_job_text(const fs::path& job_file, const std::string& name) {

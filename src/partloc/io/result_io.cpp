@@ -8,6 +8,7 @@
 #include "partloc/core/geometry.hpp"
 #include "partloc/io/atomic_file.hpp"
 #include "partloc/io/cloud_io.hpp"
+#include "partloc/io/offsets.hpp"
 #include "partloc/io/report_html.hpp"
 
 namespace partloc::io {
@@ -208,6 +209,7 @@ std::string result_json(const Job& job, const JobResult& result) {
     j["workpiece"] = workpiece_json(job, result.workpiece);
     j["probed_poses"] = probed_json(job);
     j["warnings"] = result.warnings;
+    if (!job.output.offsets.empty()) j["offsets"] = Json::parse(work_offsets_json(job, result));
     j["seconds"] = number(result.seconds);
     return compact_number_arrays(j.dump(2)) + "\n";
 }
@@ -241,6 +243,7 @@ std::vector<fs::path> write_outputs(const fs::path& out_dir, const Job& job, con
     for (int k = 0; k < 4; ++k)
         if (made[k]) written.push_back(files[k]);
 
+    for (const auto& f : write_work_offsets(out_dir, job, result)) written.push_back(f);
     write_text_atomically(out_dir / "result.json", result_json(job, result));
     written.push_back(out_dir / "result.json");
     return written;

@@ -75,6 +75,12 @@ struct Scan {
     AxisValues axes;   ///< axis values when the scan was taken
 };
 
+/// What `run` writes besides result.json and the models (SPEC "Machining").
+struct OutputSpec {
+    std::vector<std::string> offsets;  ///< work-offset dialects: fanuc, siemens, heidenhain, linuxcnc
+    int work_offset = 1;               ///< 1 = G54 / the first preset, 2 = G55 ..., at most 6
+};
+
 struct Job {
     std::string units = "mm";
     ScannerSpec scanner;
@@ -83,6 +89,7 @@ struct Job {
     Workpiece workpiece;
     std::vector<Scan> scans;
     std::vector<ProbedPose> probed_poses;  ///< every pose given as probe_planes, in the job's order
+    OutputSpec output;
 };
 
 /// Factor that converts a length in `units` to millimetres; throws std::invalid_argument on an unknown unit.
