@@ -84,6 +84,7 @@ def main():
             diag = ""
             if rs and cls == "rejected" and not trap:
                 parts = []
+                found = False
                 for f in rs.get("fits", []):
                     if not f.get("T_scan_fiducial") or f["fiducial"] not in fids:
                         continue
@@ -93,7 +94,12 @@ def main():
                     dt = math.dist([Tf[i][3] for i in range(3)], [Ttrue[i][3] for i in range(3)]) * k
                     parts.append("%s(%d pts) best fit %.2f mm %.2f deg off" % (
                         f["fiducial"], ts["fiducial_points"].get(f["fiducial"], 0), dt, rot_deg(Tf, Ttrue)))
-                diag = "; ".join(parts)
+                    if dt <= 1.0 and rot_deg(Tf, Ttrue) <= 0.2:
+                        found = True
+                diag = ("[found, refused] " if found else "[missed] ") + "; ".join(parts)
+                if fmax >= 3000:
+                    key = "rej3000_found" if found else "rej3000_missed"
+                    tot[key] = tot.get(key, 0) + 1
             row = dict(seed=seed, file=ts["file"], trap=trap or "", fid=fmax, cls=cls,
                        err=None if err is None else err * k, rot=rot, tol=tol["translation"] * k,
                        msg=(rs or {}).get("message", "") if rs else "no result.json", diag=diag,
@@ -170,6 +176,8 @@ def main():
     print("  of the WRONG ones, within twice the tolerance: %d" % tot.get("wrong_within_2x", 0))
     print("recall on scans with >= 3000 points of a fiducial: %d of %d right (%.1f %%), %d WRONG" % (
         tot["right3000"], tot["n3000"], 100.0 * tot["right3000"] / max(1, tot["n3000"]), tot["wrong3000"]))
+    print("  of the rejected ones: a fiducial's best fit within 1 mm and 0.2 deg of its true pose (found, refused by a check): %d;"
+          " no best fit near it (missed by the search): %d" % (tot.get("rej3000_found", 0), tot.get("rej3000_missed", 0)))
     print("traps: %d, rejected %d, registered %d" % (tot["traps"], tot["trap_rejected"], tot["trap_accepted"]))
     print("cells located: %d of %d" % (len(located), len(cells)))
     if located:

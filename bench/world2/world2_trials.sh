@@ -2,7 +2,8 @@
 # world2_trials.sh FIRST COUNT [--keep DIR] [--unit um|mm|m|in]
 # Generates COUNT world-2 cells from seed FIRST, runs partloc on each and compares every scan with the
 # truth (world2_compare.py states the tolerance). Environment: PARTLOC (default build/partloc),
-# WORLD2 (default build/bench/world2/partloc_world2), relative to the repository root.
+# WORLD2 (default build/bench/world2/partloc_world2), relative to the repository root; WORLD2_OPTS
+# (say --ideal: a perfect sensor) is passed to the generator.
 set -u
 here=$(cd "$(dirname "$0")" && pwd)
 root=$(cd "$here/../.." && pwd)
@@ -21,11 +22,11 @@ partloc=${PARTLOC:-$root/build/partloc}
 gen=${WORLD2:-$root/build/bench/world2/partloc_world2}
 if [ -n "$keep" ]; then work=$keep; mkdir -p "$work"; else work=$(mktemp -d); trap 'rm -rf "$work"' EXIT; fi
 seeds=()
-echo "partloc $(git -C "$root" rev-parse --short HEAD 2>/dev/null) ($partloc), world 2 generator $gen, seeds $first..$((first + count - 1)), unit $unit"
+echo "partloc $(git -C "$root" rev-parse --short HEAD 2>/dev/null) ($partloc), world 2 generator $gen, seeds $first..$((first + count - 1)), unit $unit${WORLD2_OPTS:+, generator options $WORLD2_OPTS}"
 for ((s = first; s < first + count; s++)); do
   d=$work/seed_$s
   rm -rf "$d"
-  "$gen" --out "$d" --seed "$s" --unit "$unit" > /dev/null || { echo "seed $s: generator failed" >&2; continue; }
+  "$gen" --out "$d" --seed "$s" --unit "$unit" ${WORLD2_OPTS:-} > /dev/null || { echo "seed $s: generator failed" >&2; continue; }
   start=$(date +%s.%N)
   "$partloc" run "$d/job.yaml" --out "$d/out" --no-cache > "$d/partloc.log" 2>&1
   rc=$?
