@@ -88,7 +88,11 @@ def main():
                 for f in rs.get("fits", []):
                     if not f.get("T_scan_fiducial") or f["fiducial"] not in fids:
                         continue
-                    Ttrue = mul(inv(ts["T_machine_scan"]), fids[f["fiducial"]])
+                    # the fiducial where it was at the scan's A (truth gives it at A = 0; the rotary axis of
+                    # world 2 turns about machine X through the origin and carries every body)
+                    a = math.radians(ts.get("A", 0.0) if truth["rotary"] else 0.0)
+                    MA = [[1, 0, 0, 0], [0, math.cos(a), -math.sin(a), 0], [0, math.sin(a), math.cos(a), 0], [0, 0, 0, 1]]
+                    Ttrue = mul(inv(ts["T_machine_scan"]), mul(MA, fids[f["fiducial"]]))
                     Tf = f["T_scan_fiducial"]
                     # distance at the fiducial's origin
                     dt = math.dist([Tf[i][3] for i in range(3)], [Ttrue[i][3] for i in range(3)]) * k
