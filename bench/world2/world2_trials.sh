@@ -22,7 +22,8 @@ partloc=${PARTLOC:-$root/build/partloc}
 gen=${WORLD2:-$root/build/bench/world2/partloc_world2}
 if [ -n "$keep" ]; then work=$keep; mkdir -p "$work"; else work=$(mktemp -d); trap 'rm -rf "$work"' EXIT; fi
 seeds=()
-echo "partloc $(git -C "$root" rev-parse --short HEAD 2>/dev/null) ($partloc), world 2 generator $gen, seeds $first..$((first + count - 1)), unit $unit${WORLD2_OPTS:+, generator options $WORLD2_OPTS}"
+# partloc's commit: the last one that touched its sources (this script's own commits do not change it)
+echo "partloc $(git -C "$root" log -1 --format=%h -- src CMakeLists.txt 2>/dev/null) (tree $(git -C "$root" rev-parse --short HEAD 2>/dev/null), $partloc), world 2 generator $gen, seeds $first..$((first + count - 1)), unit $unit${WORLD2_OPTS:+, generator options $WORLD2_OPTS}"
 for ((s = first; s < first + count; s++)); do
   d=$work/seed_$s
   rm -rf "$d"
