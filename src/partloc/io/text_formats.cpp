@@ -143,6 +143,12 @@ RawGeometry parse_vtk(std::string_view bytes, const std::string& name) {
         }
         g.vertices.emplace_back(xyz[0], xyz[1], xyz[2]);
     }
+    // Numbers straight after the points mean the count is smaller than the data; a next section (a keyword)
+    // is normal.
+    if (tokens.next(t) && parse_number(t, count))
+        g.warnings.push_back("numbers continue after the header's " + std::to_string(n) +
+                             " points; the rest of the POINTS section was not read (a count smaller than the "
+                             "data: is the file cut or half exported?)");
     return g;
 }
 
