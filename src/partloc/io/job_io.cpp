@@ -490,7 +490,7 @@ void check_geometry(const Job& job, const std::string& job_name, double mm_per_u
     const double max_length = kMaxMillimetres / mm_per_unit;
     const std::string unit = " " + job.units;
     const auto check = [&](const std::string& file, const std::vector<Eigen::Vector3d>& points,
-                           std::size_t min_points, const std::string& what, const char* needs) {
+                           std::size_t min_points, const std::string& what, const char* needs, int min_rank) {
         const Extent e = extent_of(points);
         if (e.points < min_points)
             throw InputError(file, "has only " + std::to_string(e.points) + (e.points == 1 ? " point" : " points") +
@@ -499,6 +499,7 @@ void check_geometry(const Job& job, const std::string& job_name, double mm_per_u
             throw InputError(file, "coordinates reach " + shortest(e.max_abs) + unit + ", beyond the " +
                                        shortest(max_length) + unit +
                                        " (10 km) a machine can hold: a wrong unit or a corrupt file?");
+        if (e.rank >= min_rank) return e;
         if (e.rank == 0)
             throw InputError(file, "all " + std::to_string(e.points) + " points are one and the same point; " +
                                        what + " needs " + needs);
@@ -512,13 +513,13 @@ void check_geometry(const Job& job, const std::string& job_name, double mm_per_u
     };
     double largest_scan = 0, densest_spacing = std::numeric_limits<double>::infinity();
     for (const Scan& s : job.scans) {
-        const Extent e = check(s.file, s.points->points_, 10, "a scan", "points spread in three dimensions");
+        const Extent e = check(s.file, s.points->points_, 10, "a scan", "points spread in three dimensions", 3);
         largest_scan = std::max(largest_scan, e.diagonal);
         densest_spacing = std::min(densest_spacing, e.diagonal / std::sqrt(static_cast<double>(e.points)));
     }
     for (const Fiducial& f : job.fiducials) {
         const Extent e = check(f.model.file, vertices_of(f.model), 4, "a fiducial",
-                               "a three-dimensional shape");
+                               "a three-dimensional shape", 3);
         if (e.diagonal > 1000 * largest_scan)
             throw InputError(f.model.file, "the model is " + shortest(e.diagonal / largest_scan) +
                                                " times larger than the largest scan (" +
@@ -527,10 +528,9 @@ void check_geometry(const Job& job, const std::string& job_name, double mm_per_u
     }
     const Workpiece& w = job.workpiece;
     if (w.reference_surfaces.mesh || w.reference_surfaces.points)
-        check(w.reference_surfaces.file, vertices_of(w.reference_surfaces), 4, "the reference surfaces",
-              "surfaces facing three ways to fix the workpiece's six degrees of freedom");
-    if (w.final_part)
-        check(w.final_part->file, vertices_of(*w.final_part), 4, "the final part", "a solid shape");
+        check(w.reference_surfaces.file, vertices_of(w.reference_surfaces), 3, "a set of reference surfaces",
+              "at least a surface", 2);  // one plane is enough for a plate's top (3 of the 6 degrees of freedom)
+    if (w.final_part) check(w.final_part->file, vertices_of(*w.final_part), 3, "the final part", "a surface", 2);
     // A spacing far below what the scans can have (their diagonal over the root of their count is about
     // their spacing) sizes grids and Open3D's voxel downsampling by it: 1e-9 mm asks 2^31 cells and more.
     if (job.scanner.point_spacing && *job.scanner.point_spacing < densest_spacing / 100)
