@@ -83,6 +83,7 @@ int command_run(const std::string& job_file, const std::string& out_dir, int thr
     Job job;
     try {
         job = io::load_job(job_file, io::LoadOptions{threads});
+        io::check_job_geometry(job, job_file);
     } catch (const io::InputError& e) {
         return complain(e.what(), kBadInput);
     } catch (const std::exception& e) {

@@ -482,12 +482,14 @@ const std::vector<Eigen::Vector3d>& vertices_of(const ModelSource& m) {
     return m.mesh ? m.mesh->vertices_ : m.points ? m.points->points_ : none;
 }
 
+}  // namespace
+
 /// The checks of extent and rank that the algorithms need of the data (core/extent.hpp), made where the
 /// data enters so that the message names the file: Open3D's hull and Delaunay (Qhull) throw on planar or
 /// collinear points, its KD-tree and voxel grid on points of no extent or of an extent of more than 2^31
 /// cells, the pose search's tables grow with the model's size over the point spacing.
-void check_geometry(const Job& job, const std::string& job_name, double mm_per_unit) {
-    const double max_length = kMaxMillimetres / mm_per_unit;
+void check_job_geometry(const Job& job, const std::string& job_name) {
+    const double max_length = kMaxMillimetres / millimetres_per_unit(job.units);
     const std::string unit = " " + job.units;
     const auto check = [&](const std::string& file, const std::vector<Eigen::Vector3d>& points,
                            std::size_t min_points, const std::string& what, const char* needs, int min_rank) {
@@ -538,6 +540,8 @@ void check_geometry(const Job& job, const std::string& job_name, double mm_per_u
                                        " is less than a hundredth of what the scans can have (about " +
                                        shortest(densest_spacing) + unit + "): a wrong unit?");
 }
+
+namespace {
 
 std::string read_job_text(const fs::path& job_file, const std::string& name) {
     try {
@@ -599,7 +603,6 @@ Job load_job(const fs::path& job_file, const LoadOptions& options) {
     Workpiece& w = job.workpiece;
     if (!w.reference_surfaces.mesh && !w.reference_surfaces.points && !w.datums.empty())
         w.reference_surfaces = union_of_datums(w.datums);
-    check_geometry(job, name, millimetres_per_unit(job.units));
     return job;
 }
 
