@@ -159,6 +159,13 @@ TEST_F(Hostile, PlyCountOf10e12InASmallFile) {
     expect_bad(job("scans/big.ply"), "scans/big.ply", "truncated");
 }
 
+TEST_F(Hostile, VtkPointsBeyondSizeT) {
+    // fuzz_vtk's first finding: a count of 3e40 cast to size_t (undefined).
+    spit(dir() / "scans/big.vtk", "# vtk DataFile Version 3.0\nscan\nASCII\nDATASET POLYDATA\n"
+                                  "POINTS 33333333333333333333333333333333333333333 float\n0 0 0\n");
+    expect_bad(job("scans/big.vtk"), "scans/big.vtk", "expected 'POINTS COUNT TYPE'");
+}
+
 TEST_F(Hostile, PcdPointsOf10e9And2e31InASmallAsciiFile) {
     for (const char* points : {"1000000000", "2147483648"}) {
         spit(dir() / "scans/big.pcd", std::string("VERSION .7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
