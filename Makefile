@@ -3,7 +3,10 @@ BUILD ?= build
 BUILD_TYPE ?= Release
 JOBS ?= $(shell nproc)
 
-.PHONY: all deps configure build test demo clean
+FUZZ_BUILD ?= build-fuzz
+FUZZ_SECONDS ?= 60
+
+.PHONY: all deps configure build test demo fuzz clean
 
 all: build
 
@@ -22,5 +25,12 @@ test: build
 demo: build
 	$(BUILD)/partloc demo
 
+# libFuzzer over each reader and the job loader, FUZZ_SECONDS each (scripts/fuzz.sh); not part of `make test`.
+fuzz: deps
+	cmake -S . -B $(FUZZ_BUILD) -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_COMPILER=clang++ -DPARTLOC_FUZZ=ON \
+	  -DPARTLOC_BUILD_TESTS=OFF -DPARTLOC_BUILD_BENCH=OFF
+	cmake --build $(FUZZ_BUILD) -j$(JOBS) --target fuzz_all
+	scripts/fuzz.sh $(FUZZ_BUILD) $(FUZZ_SECONDS)
+
 clean:
-	rm -rf $(BUILD)
+	rm -rf $(BUILD) $(FUZZ_BUILD)

@@ -14,6 +14,7 @@
 #include "partloc/core/geometry.hpp"
 #include "partloc/io/job_io.hpp"
 #include "partloc/io/model_cache.hpp"
+#include "partloc/io/output_lock.hpp"
 #include "partloc/io/result_io.hpp"
 
 namespace partloc::cli {
@@ -95,6 +96,7 @@ int command_run(const std::string& job_file, const std::string& out_dir, int thr
     try {
         if (telling(progress)) std::cerr << "partloc: reading " << job_file << " and its files" << std::endl;
         job = io::load_job(job_file, io::LoadOptions{threads});
+        io::check_job_geometry(job, job_file);
     } catch (const io::InputError& e) {
         return complain(e.what(), kBadInput);
     } catch (const std::exception& e) {
@@ -106,6 +108,17 @@ int command_run(const std::string& job_file, const std::string& out_dir, int thr
         std::error_code ec;
         if (std::filesystem::exists(out_dir, ec) && !std::filesystem::is_directory(out_dir, ec))
             return complain(out_dir + ": --out names a file, not a folder", kBadInput);
+    }
+
+    // One run at a time into a folder; taken before the run, so that a second run is refused at once and not
+    // after its work (io/output_lock.hpp). Held until the files are written.
+    std::optional<io::OutputFolderLock> lock;
+    try {
+        lock.emplace(out_dir);
+    } catch (const io::FolderBusy& e) {
+        return complain(e.what(), kBadInput);
+    } catch (const std::exception& e) {
+        return complain(std::string("cannot write the output: ") + e.what(), kFailed);
     }
 
     // The fiducials' prepared models, kept between jobs (io/model_cache.hpp); without a folder to keep them
@@ -141,6 +154,7 @@ int command_run(const std::string& job_file, const std::string& out_dir, int thr
     // The cache never changes the result; what it could not do is said, and the job goes on without it.
     if (models)
         for (const auto& p : models->problems()) std::cerr << "partloc: model cache: " << p << std::endl;
+    for (const auto& w : job.warnings) std::cerr << "partloc: warning: " << w << std::endl;
     print_summary(std::cout, job_file, job, result);
     std::cout << "wrote";
     for (const auto& p : written) std::cout << " " << p.string();

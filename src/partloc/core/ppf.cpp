@@ -198,7 +198,16 @@ void PpfModel::set_extent() {
     for (const auto& p : points_) box.extend(p);
     diameter_ = box.diagonal().norm();
     center_ = box.center();
-    distance_bins_ = static_cast<int>(std::ceil(diameter_ / settings_.sampling)) + 2;
+    // The table has a slot per (distance, angle, angle, angle) bin, counted in int: a model far larger than
+    // the sampling step (a fiducial 10^6 times the scan, a wrong unit) overflowed 15 * 334094730 and then
+    // asked for terabytes. Checked in floating point, before any cast.
+    const double A = settings_.angle_bins;
+    const double bins = std::ceil(diameter_ / settings_.sampling) + 2;
+    if (!std::isfinite(diameter_) || !(settings_.sampling > 0) || !(bins * A * A * A < (1 << 28)))
+        throw std::invalid_argument("PPF model: the model is " + std::to_string(diameter_ / settings_.sampling) +
+                                    " sampling steps across, more than a feature table can hold (a model far "
+                                    "larger than the point spacing: a wrong unit?)");
+    distance_bins_ = static_cast<int>(bins);
 }
 
 int PpfModel::key(const Eigen::Vector3d& p1, const Eigen::Vector3d& n1, const Eigen::Vector3d& p2,

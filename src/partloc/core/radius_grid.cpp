@@ -48,9 +48,16 @@ void RadiusGrid::within(const Eigen::Vector3d& centre, double radius, std::vecto
     const Eigen::Vector3d lo = (centre.array() - radius - frame_.origin.array()) / frame_.cell;
     const Eigen::Vector3d hi = (centre.array() + radius - frame_.origin.array()) / frame_.cell;
     if (hi.x() < 0 || hi.y() < 0 || hi.z() < 0 || lo.x() >= frame_.nx || lo.y() >= frame_.ny || lo.z() >= frame_.nz) return;
-    const int x0 = std::max(0, static_cast<int>(std::floor(lo.x()))), x1 = std::min(frame_.nx - 1, static_cast<int>(hi.x()));
-    const int y0 = std::max(0, static_cast<int>(std::floor(lo.y()))), y1 = std::min(frame_.ny - 1, static_cast<int>(hi.y()));
-    const int z0 = std::max(0, static_cast<int>(std::floor(lo.z()))), z1 = std::min(frame_.nz - 1, static_cast<int>(hi.z()));
+    // The bounds clamped as doubles before the cast (a ball far outside the grid overflowed int, undefined):
+    // the same cells as before for every ball, and an empty range for one that misses the grid or is NaN.
+    const auto first = [](double v, int n) {
+        if (v >= 0) return static_cast<int>(std::min(std::floor(v), double(n)));
+        return v < 0 ? 0 : n;
+    };
+    const auto last = [](double v, int n) { return v >= -1 ? static_cast<int>(std::min(v, n - 1.0)) : -1; };
+    const int x0 = first(lo.x(), frame_.nx), x1 = last(hi.x(), frame_.nx);
+    const int y0 = first(lo.y(), frame_.ny), y1 = last(hi.y(), frame_.ny);
+    const int z0 = first(lo.z(), frame_.nz), z1 = last(hi.z(), frame_.nz);
     if (x1 - x0 <= 2 && y1 - y0 <= 2 && z1 - z0 <= 2) {
         // A small ball (the normals' neighbours, a ball of a cell's radius): every point of the rows of its
         // at most 27 cells is tested, row by row (a row's cells are consecutive in the CSR arrays). The same

@@ -25,8 +25,10 @@ CellFrame::CellFrame(const Eigen::AlignedBox3d& box, double c, double max_cells)
 
 Eigen::Array3i CellFrame::clamped_cell(const Eigen::Vector3d& p) const {
     const Eigen::Vector3d f = (p - origin) * inv_cell;
-    return {std::clamp(static_cast<int>(f.x()), 0, nx - 1), std::clamp(static_cast<int>(f.y()), 0, ny - 1),
-            std::clamp(static_cast<int>(f.z()), 0, nz - 1)};
+    // Clamped as doubles, then cast: a point far outside the frame (1e9 cells away) cast first overflowed int
+    // (undefined; clang's float-cast-overflow check). The same cells for every point that fits; NaN gives 0.
+    const auto clamped = [](double v, int n) { return v >= 0 ? static_cast<int>(std::min(v, n - 1.0)) : 0; };
+    return {clamped(f.x(), nx), clamped(f.y(), ny), clamped(f.z(), nz)};
 }
 
 CellBuckets bucket_by_cell(const CellFrame& frame, const std::vector<Eigen::Vector3d>& points) {

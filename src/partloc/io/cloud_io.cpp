@@ -148,11 +148,19 @@ void write_bytes_atomically(const fs::path& path, const std::string& bytes) {
 
 }  // namespace
 
+static void pass_warnings(const RawGeometry& g, const std::string& name, std::vector<std::string>* warnings) {
+    if (warnings)
+        for (const auto& w : g.warnings) warnings->push_back(name + ": " + w);
+}
+
 std::shared_ptr<open3d::geometry::PointCloud> read_point_cloud(const fs::path& path,
                                                                const std::string& display_name,
-                                                               double units_scale) {
+                                                               double units_scale,
+                                                               std::vector<std::string>* warnings) {
     check_scale(units_scale, display_name);
-    return to_cloud(read_raw(path, display_name), display_name, units_scale);
+    RawGeometry g = read_raw(path, display_name);
+    pass_warnings(g, display_name, warnings);
+    return to_cloud(std::move(g), display_name, units_scale);
 }
 
 std::shared_ptr<open3d::geometry::TriangleMesh> read_mesh(const fs::path& path,
@@ -162,9 +170,11 @@ std::shared_ptr<open3d::geometry::TriangleMesh> read_mesh(const fs::path& path,
     return to_mesh(read_raw(path, display_name), display_name, units_scale);
 }
 
-ModelSource read_model(const fs::path& path, const std::string& display_name, double units_scale) {
+ModelSource read_model(const fs::path& path, const std::string& display_name, double units_scale,
+                       std::vector<std::string>* warnings) {
     check_scale(units_scale, display_name);
     RawGeometry g = read_raw(path, display_name);
+    pass_warnings(g, display_name, warnings);
     ModelSource model;
     model.file = display_name;
     // STL has no way to hold points alone, so an STL without facets is an error, not an empty cloud.

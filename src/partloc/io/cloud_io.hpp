@@ -14,6 +14,7 @@
 #include <filesystem>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "partloc/io/input_error.hpp"
 #include "partloc/pipeline/job.hpp"
@@ -25,9 +26,12 @@ namespace partloc::io {
 /// `units_scale` (file units -> job units, > 0). `display_name` names the file in error messages (the path
 /// as the user wrote it). Throws InputError when the file is missing, unreadable, truncated or malformed, or
 /// holds no finite point.
+/// `warnings`, when given, receives what a person should know though the file was read (data beyond the
+/// header's count), each a sentence naming the file.
 std::shared_ptr<open3d::geometry::PointCloud> read_point_cloud(const std::filesystem::path& path,
                                                                const std::string& display_name,
-                                                               double units_scale = 1.0);
+                                                               double units_scale = 1.0,
+                                                               std::vector<std::string>* warnings = nullptr);
 
 /// Reads a triangle mesh (STL, PLY with faces, OBJ). Vertices are multiplied by `units_scale`; STL's
 /// repeated corners are merged into shared vertices; triangle and vertex normals are computed when the file
@@ -40,7 +44,7 @@ std::shared_ptr<open3d::geometry::TriangleMesh> read_mesh(const std::filesystem:
 /// Reads a model as the job uses it (pipeline/job.hpp): a mesh when the file has faces (STL always; PLY and
 /// OBJ when they have faces), its points otherwise. ModelSource::file is `display_name`.
 ModelSource read_model(const std::filesystem::path& path, const std::string& display_name,
-                       double units_scale = 1.0);
+                       double units_scale = 1.0, std::vector<std::string>* warnings = nullptr);
 
 /// Writes `cloud` as binary little-endian PLY (float x y z, and nx ny nz / red green blue when the cloud
 /// has them), atomically. `comment` goes into the header (e.g. "units mm"). Throws std::runtime_error

@@ -18,6 +18,10 @@ struct RawGeometry {
     std::vector<Eigen::Vector3d> vertices;
     std::vector<Eigen::Vector3d> normals;    ///< empty, or one per vertex
     std::vector<Eigen::Vector3i> triangles;  ///< indices into vertices, checked in range
+    /// What a person should know though the file was read: data beyond the header's counts (a count
+    /// smaller than the data is how a half-exported file looks), far points dropped. Sentences without the
+    /// file's name.
+    std::vector<std::string> warnings;
 };
 
 /// The whole file as bytes. Throws InputError for a missing file, a folder, an unreadable file.

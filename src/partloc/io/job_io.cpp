@@ -11,9 +11,12 @@
 #include <exception>
 #include <functional>
 #include <initializer_list>
+#include <cstdio>
+#include <limits>
 #include <set>
 #include <sstream>
 
+#include "partloc/core/extent.hpp"
 #include "partloc/core/geometry.hpp"
 #include "partloc/io/cloud_io.hpp"
 #include "partloc/io/formats.hpp"
@@ -25,6 +28,11 @@ namespace fs = std::filesystem;
 
 namespace {
 
+/// The largest coordinate a job may hold, in millimetres: 10 km. Beyond it a number is a corrupt file or a
+/// wrong unit, and the arithmetic (squared distances, grids of cells) overflows long before 1e308: a datum
+/// origin of 1e308 gave a pose of NaNs, reported as located.
+constexpr double kMaxMillimetres = 1e7;
+
 /// A file named in the job, and the factor from its units to the job's.
 struct FileRef {
     std::string file;
@@ -34,7 +42,8 @@ struct FileRef {
 /// One data file to read once the job is checked: read() fills its place in the Job.
 struct FileTask {
     FileRef ref;
-    std::function<void(const fs::path&, const FileRef&)> read;
+    /// Reads the file; what a person should know goes into the last argument (io/cloud_io.hpp).
+    std::function<void(const fs::path&, const FileRef&, std::vector<std::string>&)> read;
 };
 
 /// Walks the YAML tree; every error names the job file, the field path and the line.
@@ -125,6 +134,20 @@ class JobParser {
         return v;
     }
 
+    /// A point or an offset in the machine: 3 numbers, none larger than kMaxMillimetres.
+    Eigen::Vector3d position(const YAML::Node& n, const std::string& path) const {
+        const Eigen::Vector3d v = vector3(n, path);
+        check_length(n, path, v.cwiseAbs().maxCoeff());
+        return v;
+    }
+
+    void check_length(const YAML::Node& n, const std::string& path, double v) const {
+        const double limit = kMaxMillimetres / job_mm_per_unit_;
+        if (std::abs(v) > limit)
+            fail(n, path, "a coordinate of " + format(v) + " is beyond the " + format(limit) +
+                              " (10 km) a machine can hold");
+    }
+
     std::string text(const YAML::Node& n, const std::string& path) const {
         if (!n.IsScalar() || n.Scalar().empty()) fail(n, path, "expected a name, found " + describe(n));
         return n.Scalar();
@@ -163,7 +186,7 @@ class JobParser {
             if (!lists[i].IsSequence())
                 fail(lists[i], list, "expected a list of [x, y, z] points, found " + describe(lists[i]));
             for (std::size_t k = 0; k < lists[i].size(); ++k)
-                planes[i].push_back(vector3(lists[i][k], list + "[" + std::to_string(k) + "]"));
+                planes[i].push_back(position(lists[i][k], list + "[" + std::to_string(k) + "]"));
         }
         const ProbedFrame frame = frame_from_probe_planes(planes);
         if (!frame.valid) {
@@ -193,6 +216,7 @@ class JobParser {
                          "expected 4 numbers, found " +
                              (m[r].IsSequence() ? std::to_string(m[r].size()) + " items" : describe(m[r])));
                 for (int c = 0; c < 4; ++c) M(r, c) = number(m[r][c], row + "[" + std::to_string(c) + "]");
+                if (r < 3) check_length(m[r][3], row + "[3]", M(r, 3));
             }
             try {
                 return checked_isometry(M, at);
@@ -202,10 +226,12 @@ class JobParser {
             }
         }
         check_map(n, path, {"origin", "euler_xyz_deg", "matrix", "probe_planes"});
-        const Eigen::Vector3d origin = vector3(required(n, path, "origin"), join(path, "origin"));
+        const Eigen::Vector3d origin = position(required(n, path, "origin"), join(path, "origin"));
         const Eigen::Vector3d euler = n["euler_xyz_deg"].IsDefined()
                                           ? vector3(n["euler_xyz_deg"], join(path, "euler_xyz_deg"))
                                           : Eigen::Vector3d::Zero();
+        if (euler.cwiseAbs().maxCoeff() > 1e6)
+            fail(n["euler_xyz_deg"], join(path, "euler_xyz_deg"), "an angle beyond a million degrees");
         return pose_from_origin_euler(origin, euler);
     }
 
@@ -241,6 +267,7 @@ class JobParser {
             check_axis(it->first, at, axis);
             if (q.count(axis)) fail(it->first, at, "given twice");
             q[axis] = number(it->second, at);
+            check_length(it->second, at, q[axis]);
         }
         return q;
     }
@@ -268,12 +295,17 @@ class JobParser {
             else
                 fail(a["type"], at + ".type", "expected linear or rotary, found '" + type + "'");
             const Eigen::Vector3d d = vector3(required(a, at, "direction"), at + ".direction");
-            if (d.norm() < 1e-9) fail(a["direction"], at + ".direction", "must not be zero");
-            axis.direction = d.normalized();
+            if (d.isZero(0.0)) fail(a["direction"], at + ".direction", "must not be zero");
+            // Its length does not matter: [1e200, 0, 0] and [1e-200, 0, 0] are [1, 0, 0]. Their norms overflow
+            // or underflow, so such a vector is first divided by its largest coordinate; one of ordinary length
+            // is normalised as it was, bit for bit.
+            const double length = d.norm();
+            axis.direction = length > 1e-100 && length < 1e100 ? d.normalized()
+                                                                : (d / d.cwiseAbs().maxCoeff()).normalized();
             if (axis.type == AxisType::Rotary)
-                axis.point = vector3(required(a, at, "point"), at + ".point");
+                axis.point = position(required(a, at, "point"), at + ".point");
             else if (a["point"].IsDefined())
-                axis.point = vector3(a["point"], at + ".point");
+                axis.point = position(a["point"], at + ".point");
             m.axes.push_back(axis);
         }
         return m;
@@ -302,9 +334,15 @@ void JobParser::parse(const YAML::Node& root, Job& job, std::vector<FileTask>& t
     if (const YAML::Node s = root["scanner"]; s.IsDefined() && !s.IsNull()) {
         check_map(s, "scanner", {"point_spacing", "noise"});
         if (s["point_spacing"].IsDefined())
+        {
             job.scanner.point_spacing = number_at_least(s["point_spacing"], "scanner.point_spacing", 0, true);
+            check_length(s["point_spacing"], "scanner.point_spacing", *job.scanner.point_spacing);
+        }
         if (s["noise"].IsDefined())
+        {
             job.scanner.noise = number_at_least(s["noise"], "scanner.noise", 0, false);
+            check_length(s["noise"], "scanner.noise", *job.scanner.noise);
+        }
     }
 
     machine_ = machine(root["machine"]);
@@ -334,8 +372,8 @@ void JobParser::parse(const YAML::Node& root, Job& job, std::vector<FileTask>& t
         fid.pose_sigma = f["pose_sigma"].IsDefined()
                              ? number_at_least(f["pose_sigma"], at + ".pose_sigma", 0, false)
                              : 0.005 / job_mm_per_unit_;
-        tasks.push_back({model, [&fid](const fs::path& p, const FileRef& r) {
-                             fid.model = read_model(p, r.file, r.scale);
+        tasks.push_back({model, [&fid](const fs::path& p, const FileRef& r, std::vector<std::string>& warnings) {
+                             fid.model = read_model(p, r.file, r.scale, &warnings);
                          }});
     }
 
@@ -359,8 +397,8 @@ void JobParser::parse(const YAML::Node& root, Job& job, std::vector<FileTask>& t
                          "datum name '" + datum.name + "' is already used by workpiece.datums[" +
                              std::to_string(j) + "]");
             const FileRef surfaces = file_ref(required(d[i], at, "surfaces"), at + ".surfaces");
-            tasks.push_back({surfaces, [&datum](const fs::path& p, const FileRef& r) {
-                                 datum.surfaces = read_model(p, r.file, r.scale);
+            tasks.push_back({surfaces, [&datum](const fs::path& p, const FileRef& r, std::vector<std::string>& warnings) {
+                                 datum.surfaces = read_model(p, r.file, r.scale, &warnings);
                              }});
         }
     }
@@ -380,22 +418,22 @@ void JobParser::parse(const YAML::Node& root, Job& job, std::vector<FileTask>& t
     if (!has_datums || (w["reference_surfaces"].IsDefined() && !w["reference_surfaces"].IsNull())) {
         const FileRef reference =
             file_ref(required(w, "workpiece", "reference_surfaces"), "workpiece.reference_surfaces");
-        tasks.push_back({reference, [&job](const fs::path& p, const FileRef& r) {
-                             job.workpiece.reference_surfaces = read_model(p, r.file, r.scale);
+        tasks.push_back({reference, [&job](const fs::path& p, const FileRef& r, std::vector<std::string>& warnings) {
+                             job.workpiece.reference_surfaces = read_model(p, r.file, r.scale, &warnings);
                          }});
     }
     if (w["datum"].IsDefined()) job.workpiece.T_machine_workpiece = pose(w["datum"], "workpiece.datum");
     if (w["final_part"].IsDefined() && !w["final_part"].IsNull()) {
         const FileRef part = file_ref(w["final_part"], "workpiece.final_part");
-        tasks.push_back({part, [&job](const fs::path& p, const FileRef& r) {
-                             job.workpiece.final_part = read_model(p, r.file, r.scale);
+        tasks.push_back({part, [&job](const fs::path& p, const FileRef& r, std::vector<std::string>& warnings) {
+                             job.workpiece.final_part = read_model(p, r.file, r.scale, &warnings);
                          }});
     }
     job.workpiece.moves_with = axis_chain(w["moves_with"], "workpiece.moves_with");
     if (const YAML::Node r = w["region"]; r.IsDefined() && !r.IsNull()) {
         check_map(r, "workpiece.region", {"min", "max"});
-        const Eigen::Vector3d lo = vector3(required(r, "workpiece.region", "min"), "workpiece.region.min");
-        const Eigen::Vector3d hi = vector3(required(r, "workpiece.region", "max"), "workpiece.region.max");
+        const Eigen::Vector3d lo = position(required(r, "workpiece.region", "min"), "workpiece.region.min");
+        const Eigen::Vector3d hi = position(required(r, "workpiece.region", "max"), "workpiece.region.max");
         if ((hi - lo).minCoeff() <= 0)
             fail(r, "workpiece.region", "max must be greater than min on every axis");
         job.workpiece.region = Eigen::AlignedBox3d(lo, hi);
@@ -420,8 +458,16 @@ void JobParser::parse(const YAML::Node& root, Job& job, std::vector<FileTask>& t
             scan.axes = axis_values(s["axes"], at + ".axes");
         }
         scan.file = ref.file;
-        tasks.push_back({ref, [&scan](const fs::path& p, const FileRef& r) {
-                             scan.points = read_point_cloud(p, r.file, r.scale);
+        tasks.push_back({ref, [&scan](const fs::path& p, const FileRef& r, std::vector<std::string>& warnings) {
+                             auto cloud = read_point_cloud(p, r.file, r.scale, &warnings);
+                             // One point at 1e9 in a scan of 200 mm is a glitch, not part of the scene:
+                             // dropped and named, so that it neither spoils the scan nor passes unseen.
+                             if (const std::size_t far = remove_far_points(cloud->points_, cloud->normals_))
+                                 warnings.push_back(r.file + ": " + std::to_string(far) +
+                                                    (far == 1 ? " point lies" : " points lie") +
+                                                    " more than 100 times the scan's size from the rest "
+                                                    "and " + (far == 1 ? "was" : "were") + " left out");
+                             scan.points = std::move(cloud);
                          }});
     }
     job.probed_poses = probed_;
@@ -455,6 +501,78 @@ void JobParser::parse(const YAML::Node& root, Job& job, std::vector<FileTask>& t
         }
     }
 }
+
+std::string shortest(double v) {
+    char buffer[32];
+    std::snprintf(buffer, sizeof buffer, "%.3g", v);
+    return buffer;
+}
+
+const std::vector<Eigen::Vector3d>& vertices_of(const ModelSource& m) {
+    static const std::vector<Eigen::Vector3d> none;
+    return m.mesh ? m.mesh->vertices_ : m.points ? m.points->points_ : none;
+}
+
+}  // namespace
+
+/// The checks of extent and rank that the algorithms need of the data (core/extent.hpp), made where the
+/// data enters so that the message names the file: Open3D's hull and Delaunay (Qhull) throw on planar or
+/// collinear points, its KD-tree and voxel grid on points of no extent or of an extent of more than 2^31
+/// cells, the pose search's tables grow with the model's size over the point spacing.
+void check_job_geometry(const Job& job, const std::string& job_name) {
+    const double max_length = kMaxMillimetres / millimetres_per_unit(job.units);
+    const std::string unit = " " + job.units;
+    const auto check = [&](const std::string& file, const std::vector<Eigen::Vector3d>& points,
+                           std::size_t min_points, const std::string& what, const char* needs, int min_rank) {
+        const Extent e = extent_of(points);
+        if (e.points < min_points)
+            throw InputError(file, "has only " + std::to_string(e.points) + (e.points == 1 ? " point" : " points") +
+                                       "; " + what + " needs at least " + std::to_string(min_points));
+        if (!(e.max_abs <= max_length))
+            throw InputError(file, "coordinates reach " + shortest(e.max_abs) + unit + ", beyond the " +
+                                       shortest(max_length) + unit +
+                                       " (10 km) a machine can hold: a wrong unit or a corrupt file?");
+        if (e.rank >= min_rank) return e;
+        if (e.rank == 0)
+            throw InputError(file, "all " + std::to_string(e.points) + " points are one and the same point; " +
+                                       what + " needs " + needs);
+        if (e.rank == 1)
+            throw InputError(file, "its points lie on one line; " + what + " needs " + needs);
+        if (e.rank == 2)
+            throw InputError(file, "its points lie in one plane (thickness " + shortest(e.thickness) +
+                                       " against a size of " + shortest(e.size) + unit + "); " + what +
+                                       " needs " + needs);
+        return e;
+    };
+    double largest_scan = 0, densest_spacing = std::numeric_limits<double>::infinity();
+    for (const Scan& s : job.scans) {
+        const Extent e = check(s.file, s.points->points_, 10, "a scan", "points spread in three dimensions", 3);
+        largest_scan = std::max(largest_scan, e.diagonal);
+        densest_spacing = std::min(densest_spacing, e.diagonal / std::sqrt(static_cast<double>(e.points)));
+    }
+    for (const Fiducial& f : job.fiducials) {
+        const Extent e = check(f.model.file, vertices_of(f.model), 4, "a fiducial",
+                               "a three-dimensional shape", 3);
+        if (e.diagonal > 1000 * largest_scan)
+            throw InputError(f.model.file, "the model is " + shortest(e.diagonal / largest_scan) +
+                                               " times larger than the largest scan (" +
+                                               shortest(e.diagonal) + " against " + shortest(largest_scan) +
+                                               unit + "): a wrong unit?");
+    }
+    const Workpiece& w = job.workpiece;
+    if (w.reference_surfaces.mesh || w.reference_surfaces.points)
+        check(w.reference_surfaces.file, vertices_of(w.reference_surfaces), 3, "a set of reference surfaces",
+              "at least a surface", 2);  // one plane is enough for a plate's top (3 of the 6 degrees of freedom)
+    if (w.final_part) check(w.final_part->file, vertices_of(*w.final_part), 3, "the final part", "a surface", 2);
+    // A spacing far below what the scans can have (their diagonal over the root of their count is about
+    // their spacing) sizes grids and Open3D's voxel downsampling by it: 1e-9 mm asks 2^31 cells and more.
+    if (job.scanner.point_spacing && *job.scanner.point_spacing < densest_spacing / 100)
+        throw InputError(job_name, "scanner.point_spacing: " + shortest(*job.scanner.point_spacing) + unit +
+                                       " is less than a hundredth of what the scans can have (about " +
+                                       shortest(densest_spacing) + unit + "): a wrong unit?");
+}
+
+namespace {
 
 std::string read_job_text(const fs::path& job_file, const std::string& name) {
     try {
@@ -493,11 +611,12 @@ Job load_job(const fs::path& job_file, const LoadOptions& options) {
     // several bad files the first in the job is reported.
     const fs::path base = job_file.parent_path();
     std::vector<std::exception_ptr> errors(tasks.size());
+    std::vector<std::vector<std::string>> warnings(tasks.size());
     const auto run = [&](std::size_t i) {
         try {
             fs::path path = tasks[i].ref.file;
             if (path.is_relative()) path = base / path;
-            tasks[i].read(path, tasks[i].ref);
+            tasks[i].read(path, tasks[i].ref, warnings[i]);
         } catch (...) {
             errors[i] = std::current_exception();
         }
@@ -511,6 +630,7 @@ Job load_job(const fs::path& job_file, const LoadOptions& options) {
     arena.execute([&] { tbb::parallel_for(std::size_t(0), tasks.size(), run); });
     for (const auto& e : errors)
         if (e) std::rethrow_exception(e);
+    for (const auto& w : warnings) job.warnings.insert(job.warnings.end(), w.begin(), w.end());
     Workpiece& w = job.workpiece;
     if (!w.reference_surfaces.mesh && !w.reference_surfaces.points && !w.datums.empty())
         w.reference_surfaces = union_of_datums(w.datums);

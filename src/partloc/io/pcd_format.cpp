@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <limits>
 #include <mutex>
 
 #include "partloc/io/formats.hpp"
@@ -131,6 +132,26 @@ PcdHeader parse_header(std::string_view bytes, const std::string& name) {
         if (!have_width) throw InputError(name, "PCD header: neither POINTS nor WIDTH");
         h.points = width * std::max<std::size_t>(height, 1);
     }
+    // Every count is checked against the file's size before it sizes anything: a header may ask 10^12
+    // values per point (the ascii reader's row of values, 8 TB), or points of terabytes, in a file of a few
+    // hundred bytes, and the products below would overflow. The number of points needs no check here: the
+    // ascii reader reserves no more than the bytes hold, and the binary size check follows.
+    const long double data_bytes = static_cast<long double>(bytes.size() - h.data_offset);
+    long double point_bytes = 0, values = 0;
+    for (std::size_t i = 0; i < h.fields.size(); ++i) {
+        point_bytes += static_cast<long double>(h.sizes[i]) * h.counts[i];
+        values += h.counts[i];
+    }
+    if (h.points > 0 && values > data_bytes + 1)
+        throw InputError(name, "file is truncated (the header's points of " +
+                                   std::to_string(static_cast<unsigned long long>(values)) +
+                                   " values each need more data than the file's " +
+                                   std::to_string(bytes.size() - h.data_offset) + " bytes)");
+    if (point_bytes > static_cast<long double>(std::numeric_limits<std::uint32_t>::max()) ||
+        static_cast<long double>(h.points) * point_bytes > 1e15L)
+        throw InputError(name, "PCD header: points of " +
+                                   std::to_string(static_cast<unsigned long long>(point_bytes)) +
+                                   " bytes each are more than any file holds");
     for (std::size_t i = 0; i < h.fields.size(); ++i) {
         h.point_bytes += h.sizes[i] * h.counts[i];
         h.values_per_point += h.counts[i];
@@ -191,11 +212,15 @@ RawGeometry read_pcd(const std::filesystem::path& path, std::string_view bytes, 
     if (h.data == "ascii") return parse_ascii(bytes, h, name);
 
     const std::size_t available = bytes.size() - h.data_offset;
+    std::string extra;
     if (h.data == "binary") {
         if (h.point_bytes == 0) throw InputError(name, "PCD header: points of 0 bytes");
         if (available < h.points * h.point_bytes)
             throw InputError(name, "file is truncated (expected " + std::to_string(h.points) +
                                        " points, found " + std::to_string(available / h.point_bytes) + ")");
+        if (available > h.points * h.point_bytes)
+            extra = "the data holds " + std::to_string(available - h.points * h.point_bytes) +
+                    " bytes more than the header's " + std::to_string(h.points) + " points";
     } else {
         // binary_compressed: uint32 compressed size, uint32 uncompressed size, then the LZF block.
         if (available < 8) throw InputError(name, "file is truncated (no compressed data after the header)");
@@ -226,6 +251,9 @@ RawGeometry read_pcd(const std::filesystem::path& path, std::string_view bytes, 
     RawGeometry g;
     g.vertices = std::move(cloud.points_);
     if (cloud.normals_.size() == g.vertices.size()) g.normals = std::move(cloud.normals_);
+    if (!extra.empty())
+        g.warnings.push_back(extra + "; the rest of the file was not read (a count smaller than the data: is "
+                                     "the file cut or half exported?)");
     return g;
 }
 

@@ -145,6 +145,12 @@ class PlyBody {
     }
 
     bool binary() const { return encoding_ != PlyEncoding::Ascii; }
+    /// True when data is left after the last element: bytes (binary) or a token (ascii).
+    bool has_more() {
+        if (encoding_ != PlyEncoding::Ascii) return p_ < end_;
+        std::string_view token;
+        return tokens_.next(token);
+    }
     bool swapped() const { return swap_; }
     /// The next `count` records of `stride` bytes (binary only), as far as the data holds whole ones: their
     /// first byte, and how many there are in `complete`; the body moves past them.
@@ -272,6 +278,10 @@ RawGeometry parse_ply(std::string_view bytes, const std::string& name) {
             if (indices < 0) throw InputError(name, "face element has no vertex_indices list");
         }
         const bool has_normals = nxyz[0] >= 0 && nxyz[1] >= 0 && nxyz[2] >= 0;
+        // An element without properties holds no bytes, whatever its count (10^12 of them took minutes to
+        // walk). Every other record takes at least a byte, so no loop below outlives the file, and nothing is
+        // reserved beyond what the bytes could hold: a lying count costs no more than the file's size.
+        if (e.properties.empty()) continue;
 
         // Records of a fixed size (no lists): their size, and each property's offset in them.
         bool no_lists = true;
@@ -359,6 +369,10 @@ RawGeometry parse_ply(std::string_view bytes, const std::string& name) {
         }
     }
     if (!have_vertices) throw InputError(name, "PLY file has no vertex element");
+    if (body.has_more())
+        g.warnings.push_back("data continues after the header's " + std::to_string(vertex_count) +
+                             " vertices and the elements after them; the rest of the file was not read "
+                             "(a count smaller than the data: is the file cut or half exported?)");
     for (std::size_t i = 0; i < g.triangles.size(); ++i)
         if (static_cast<std::size_t>(g.triangles[i].maxCoeff()) >= vertex_count)
             throw InputError(name, "a face refers to vertex " + std::to_string(g.triangles[i].maxCoeff()) +

@@ -211,12 +211,24 @@ std::string result_json(const Job& job, const JobResult& result) {
     j["warnings"] = result.warnings;
     if (!job.output.offsets.empty()) j["offsets"] = Json::parse(work_offsets_json(job, result));
     j["seconds"] = number(result.seconds);
-    return compact_number_arrays(j.dump(2)) + "\n";
+    if (!job.warnings.empty()) j["warnings"] = job.warnings;
+    // A file name need not be UTF-8 (a path is bytes); JSON must be. Bytes that are not UTF-8 are written as
+    // U+FFFD, rather than the writer throwing and the run failing at its last step.
+    return compact_number_arrays(j.dump(2, ' ', false, Json::error_handler_t::replace)) + "\n";
 }
 
 std::vector<fs::path> write_outputs(const fs::path& out_dir, const Job& job, const JobResult& result,
                                     const std::string& job_name) {
     fs::create_directories(out_dir);
+    // The earlier run's result.json goes first: should this run fail half way (a full disk), the folder holds
+    // some of its files and no result.json, never an older result.json beside a newer report. A result.json
+    // in the folder therefore always belongs to the files beside it.
+    {
+        std::error_code ec;
+        fs::remove(out_dir / "result.json", ec);
+        if (ec) throw std::runtime_error((out_dir / "result.json").string() + ": cannot be replaced (" +
+                                         ec.message() + ")");
+    }
     const std::string units = "units " + job.units;
     // The files side by side (seed 106: the three models 12-13 ms, the report 8-9 ms, one after another),
     // result.json last, once the others are written; `written` in this order whatever finishes first.

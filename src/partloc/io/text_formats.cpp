@@ -125,7 +125,8 @@ RawGeometry parse_vtk(std::string_view bytes, const std::string& name) {
     }
     if (t != "POINTS") throw InputError(name, "has no POINTS section");
     double count = 0;
-    if (!tokens.next(t) || !parse_number(t, count) || count < 0 || count != std::floor(count) ||
+    // At most 10^12, as PLY's and PCD's counts: beyond size_t the cast is undefined (found by fuzz_vtk).
+    if (!tokens.next(t) || !parse_number(t, count) || count < 0 || count > 1e12 || count != std::floor(count) ||
         !tokens.next(t))
         throw InputError(name, "line " + std::to_string(tokens.line()) + ": expected 'POINTS COUNT TYPE'");
     const std::size_t n = static_cast<std::size_t>(count);
@@ -143,6 +144,12 @@ RawGeometry parse_vtk(std::string_view bytes, const std::string& name) {
         }
         g.vertices.emplace_back(xyz[0], xyz[1], xyz[2]);
     }
+    // Numbers straight after the points mean the count is smaller than the data; a next section (a keyword)
+    // is normal.
+    if (tokens.next(t) && parse_number(t, count))
+        g.warnings.push_back("numbers continue after the header's " + std::to_string(n) +
+                             " points; the rest of the POINTS section was not read (a count smaller than the "
+                             "data: is the file cut or half exported?)");
     return g;
 }
 

@@ -17,6 +17,10 @@ std::string read_file_bytes(const fs::path& path, const std::string& name) {
     const fs::file_status status = fs::status(path, ec);
     if (status.type() == fs::file_type::not_found) throw InputError(name, "no such file" + where);
     if (status.type() == fs::file_type::directory) throw InputError(name, "is a folder, not a file" + where);
+    // A device (/dev/zero, /dev/urandom) or a pipe has no size and no end: reading it whole would grow until
+    // the memory is gone, or wait forever.
+    if (status.type() != fs::file_type::regular && status.type() != fs::file_type::unknown)
+        throw InputError(name, "is not a regular file (a device, a pipe or a socket)" + where);
 
     std::unique_ptr<std::FILE, int (*)(std::FILE*)> file(std::fopen(path.c_str(), "rb"), &std::fclose);
     if (!file) throw InputError(name, std::string("cannot be opened (") + std::strerror(errno) + ")" + where);

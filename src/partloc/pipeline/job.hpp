@@ -90,6 +90,9 @@ struct Job {
     std::vector<Scan> scans;
     std::vector<ProbedPose> probed_poses;  ///< every pose given as probe_planes, in the job's order
     OutputSpec output;
+    /// What reading the files found that a person should know (data beyond a header's count, far points
+    /// dropped from a scan): sentences naming the file, for result.json's top-level warnings.
+    std::vector<std::string> warnings;
 };
 
 /// Factor that converts a length in `units` to millimetres; throws std::invalid_argument on an unknown unit.
