@@ -26,7 +26,8 @@ demo: build
 	$(BUILD)/partloc demo
 
 # libFuzzer over each reader and the job loader, FUZZ_SECONDS each (scripts/fuzz.sh); not part of `make test`.
-fuzz: deps
+fuzz:
+	@PARTLOC_WITH_FUZZ=1 scripts/install-deps.sh
 	cmake -S . -B $(FUZZ_BUILD) -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_COMPILER=clang++ -DPARTLOC_FUZZ=ON \
 	  -DPARTLOC_BUILD_TESTS=OFF -DPARTLOC_BUILD_BENCH=OFF
 	cmake --build $(FUZZ_BUILD) -j$(JOBS) --target fuzz_all

@@ -3,8 +3,10 @@
 set -euo pipefail
 pkgs=(cmake g++ make pkg-config
       libopen3d-dev libembree-dev libeigen3-dev libyaml-cpp-dev nlohmann-json3-dev libcli11-dev
-      libtbb-dev libssl-dev libgtest-dev libgmock-dev libbenchmark-dev)
+      libtbb-dev libssl-dev libgtest-dev libgmock-dev libbenchmark-dev clang-format)
 [[ "${PARTLOC_WITH_PCL:-0}" == 1 ]] && pkgs+=(libpcl-dev)
+# make fuzz: clang with its libFuzzer and sanitizer runtimes.
+[[ "${PARTLOC_WITH_FUZZ:-0}" == 1 ]] && pkgs+=(clang libclang-rt-14-dev)
 missing=()
 for p in "${pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -320,7 +320,7 @@ TEST_F(Hostile, OneFarPointIsDroppedWithAWarning) {
     EXPECT_EQ(far["scans"][0]["T_machine_scan"], plain["scans"][0]["T_machine_scan"]);
     ASSERT_TRUE(far.contains("warnings"));
     EXPECT_NE(far["warnings"].dump().find("scans/far.ply: 1 point lies"), std::string::npos) << far["warnings"];
-    EXPECT_FALSE(plain.contains("warnings"));
+    EXPECT_TRUE(!plain.contains("warnings") || plain["warnings"].empty()) << plain["warnings"];
 }
 
 /// Input at the edge of what the load checks let through: exit 2 naming a file, or 0 / 3; never 1.

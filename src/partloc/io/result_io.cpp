@@ -211,7 +211,6 @@ std::string result_json(const Job& job, const JobResult& result) {
     j["warnings"] = result.warnings;
     if (!job.output.offsets.empty()) j["offsets"] = Json::parse(work_offsets_json(job, result));
     j["seconds"] = number(result.seconds);
-    if (!job.warnings.empty()) j["warnings"] = job.warnings;
     // A file name need not be UTF-8 (a path is bytes); JSON must be. Bytes that are not UTF-8 are written as
     // U+FFFD, rather than the writer throwing and the run failing at its last step.
     return compact_number_arrays(j.dump(2, ' ', false, Json::error_handler_t::replace)) + "\n";

@@ -74,8 +74,9 @@ struct JobResult {
     std::shared_ptr<open3d::geometry::PointCloud> merged;            ///< machine frame, axes at 0
     std::shared_ptr<open3d::geometry::TriangleMesh> stock;           ///< as-built workpiece
     std::shared_ptr<open3d::geometry::TriangleMesh> final_part_located;
-    /// What a person must look at before cutting (SPEC "Status with warnings"), one sentence each: every
-    /// scan's warnings, named by the scan. A located result with warnings is still located.
+    /// What a person must look at before cutting (SPEC "Status with warnings"), one sentence each: the
+    /// job's (Job::warnings, what reading its files found), then every scan's, named by the scan. A located
+    /// result with warnings is still located.
     std::vector<std::string> warnings;
     double seconds = 0.0;
 };

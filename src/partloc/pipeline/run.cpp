@@ -284,6 +284,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     w.fit = job.workpiece.fit == WorkpieceFitMode::Datums ? "datums" : "simultaneous";
     const auto done = [&](std::string reason) {
         w.reason = std::move(reason);
+        result.warnings = job.warnings;  // what reading the files found, then each scan's
         for (const ScanResult& r : result.scans)
             for (const std::string& warning : r.warnings) result.warnings.push_back(r.file + ": " + warning);
         result.seconds = seconds_since(t0);
