@@ -24,7 +24,8 @@ sim::SimulatedJob make_cell(const CellSpec& spec) {
     return sim::simulate_random_cell(spec.seed, o);
 }
 
-bool registered_right(const Eigen::Isometry3d& T_machine_scan, const sim::SimulatedJob& cell, std::size_t scan) {
+bool registered_right(const Eigen::Isometry3d& T_machine_scan, const sim::SimulatedJob& cell,
+                      std::size_t scan) {
     const Eigen::Vector3d at = cell.truth.T_machine_workpiece.translation();
     const Eigen::Isometry3d D = T_machine_scan * cell.truth.scans[scan].T_machine_scan.inverse();
     return (D * at - at).norm() < 0.5 && rotation_angle_deg(D.linear()) < 0.2;

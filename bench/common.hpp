@@ -45,7 +45,8 @@ Verdict judge(const MethodOutcome& outcome, const sim::SimulatedJob& cell);
 
 /// A scan is registered right when its T_machine_scan moves the true workpiece origin less than 0.5 mm and
 /// turns it less than 0.2 degrees from the truth.
-bool registered_right(const Eigen::Isometry3d& T_machine_scan, const sim::SimulatedJob& cell, std::size_t scan);
+bool registered_right(const Eigen::Isometry3d& T_machine_scan, const sim::SimulatedJob& cell,
+                      std::size_t scan);
 
 /// A scan "sees a fiducial" when one fiducial got at least this many true returns in it.
 constexpr std::size_t kSeenPoints = 4000;

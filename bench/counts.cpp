@@ -7,10 +7,9 @@
 #include <cstdlib>
 #include <exception>
 
+#include "common.hpp"
 #include "partloc/pipeline/run.hpp"
 #include "partloc/sim/scenario.hpp"
-
-#include "common.hpp"
 
 namespace partloc::bench {
 

@@ -80,7 +80,7 @@ MethodOutcome run_partloc(const Job& job, std::uint64_t seed, bool stock, io::Mo
             notes.push_back("scan " + std::to_string(i) + " rejected: " + r.scans[i].reason);
     for (const auto& s : r.scans)
         out.T_machine_scan.push_back(s.valid ? std::optional<Eigen::Isometry3d>(s.T_machine_scan)
-                                                  : std::nullopt);
+                                             : std::nullopt);
     out.located = r.workpiece.valid;
     out.T_machine_workpiece = r.workpiece.T_machine_workpiece;
     out.message = r.workpiece.reason;

@@ -27,7 +27,8 @@ int nearest_main(int, char**) {
     std::normal_distribution<double> g(0.0, 0.3);
     std::uniform_real_distribution<double> ux(-10, 70), uy(-10, 50), uz(-10, 35);
     std::vector<Eigen::Vector3d> near, far;
-    for (int i = 0; i < 1000000; ++i) near.push_back(pts[pick(rng)] + Eigen::Vector3d(g(rng), g(rng), g(rng)));
+    for (int i = 0; i < 1000000; ++i)
+        near.push_back(pts[pick(rng)] + Eigen::Vector3d(g(rng), g(rng), g(rng)));
     for (int i = 0; i < 1000000; ++i) far.emplace_back(ux(rng), uy(rng), uz(rng));
     using Clock = std::chrono::steady_clock;
     const auto t0 = Clock::now();
@@ -38,7 +39,8 @@ int nearest_main(int, char**) {
     const open3d::geometry::KDTreeFlann tree(cloud);
     const auto t2 = Clock::now();
     std::printf("%zu samples; build: grid %.1f ms, KD-tree %.1f ms\n", pts.size(),
-                1e3 * std::chrono::duration<double>(t1 - t0).count(), 1e3 * std::chrono::duration<double>(t2 - t1).count());
+                1e3 * std::chrono::duration<double>(t1 - t0).count(),
+                1e3 * std::chrono::duration<double>(t2 - t1).count());
     std::printf("queries     k  grid_ns  kdtree_ns  ratio\n");
     for (const auto* set : {&near, &far})
         for (int k : {4, 6}) {
@@ -58,8 +60,8 @@ int nearest_main(int, char**) {
             const auto c = Clock::now();
             const double ng = 1e9 * std::chrono::duration<double>(b - a).count() / set->size();
             const double nt = 1e9 * std::chrono::duration<double>(c - b).count() / set->size();
-            std::printf("%-8s %4d %8.0f %10.0f %6.1f   (found %zu / %zu)\n", set == &near ? "near" : "anywhere", k, ng, nt,
-                        nt / ng, found_g, found_t);
+            std::printf("%-8s %4d %8.0f %10.0f %6.1f   (found %zu / %zu)\n",
+                        set == &near ? "near" : "anywhere", k, ng, nt, nt / ng, found_g, found_t);
         }
     // A fit's queries: the same points asked again and again as the pose converges (steps of half a
     // millimetre and a degree shrinking threefold per iteration, eight iterations), k = 4 within 1.2 mm:

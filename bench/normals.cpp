@@ -61,11 +61,12 @@ int normals_main(int, char**) {
         pc.EstimateNormals(open3d::geometry::KDTreeSearchParamHybrid(c.radius, c.max_nn));
         const auto e = Clock::now();
         std::size_t agree = 0;
-        for (std::size_t i = 0; i < ours.size(); ++i) agree += std::abs(ours[i].dot(pc.normals_[i])) > 1.0 - 1e-6;
+        for (std::size_t i = 0; i < ours.size(); ++i)
+            agree += std::abs(ours[i].dot(pc.normals_[i])) > 1.0 - 1e-6;
         const double so = std::chrono::duration<double>(b - a).count();
         const double st = std::chrono::duration<double>(e - b).count();
-        std::printf("%-10s %8zu %8.3f %7d %7.3f %9.3f %6.1f  %.4f\n", c.what, c.pts->size(), c.radius, c.max_nn, so, st,
-                    st / so, static_cast<double>(agree) / ours.size());
+        std::printf("%-10s %8zu %8.3f %7d %7.3f %9.3f %6.1f  %.4f\n", c.what, c.pts->size(), c.radius,
+                    c.max_nn, so, st, st / so, static_cast<double>(agree) / ours.size());
     }
     const Eigen::Vector3d eye = estimate_viewpoint(scan, spacing);  // as run.cpp finds the scanner
     const auto a = Clock::now();

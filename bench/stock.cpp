@@ -9,6 +9,8 @@
 // two (scanner) spacings of the mesh's triangles; back_p95: 95th percentile of the distance from those within
 // 0.5 mm to the mesh (how closely it follows the scanned surface, edges included). --sweep: ours with other
 // settings.
+#include "partloc/core/stock.hpp"
+
 #include <open3d/t/geometry/RaycastingScene.h>
 #include <tbb/global_control.h>
 
@@ -22,7 +24,6 @@
 
 #include "common.hpp"
 #include "partloc/core/radius_grid.hpp"
-#include "partloc/core/stock.hpp"
 #include "partloc/core/surface.hpp"
 #include "partloc/pipeline/run.hpp"
 
@@ -56,9 +57,9 @@ double quantile(std::vector<float> v, double q) {
 }
 
 struct Truth {
-    Mesh surface;                         // the workpiece at its true place, machine frame, axes 0
+    Mesh surface;                          // the workpiece at its true place, machine frame, axes 0
     std::vector<Eigen::Vector3d> scanned;  // true-surface samples within 1 mm of a merged point
-    std::vector<std::uint8_t> close;      // ... and within 0.5 mm of one
+    std::vector<std::uint8_t> close;       // ... and within 0.5 mm of one
 };
 
 void print_row(const std::string& what, double seconds, const Mesh& mesh, const Truth& truth,

@@ -55,8 +55,9 @@ void run(std::string_view bytes) {
     // The job with the seed corpus's small model and scan beside it, so that a mutated job reaches the
     // geometry checks too.
     static const bool files = [] {
-        write_scratch("m.ply", "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
-                               "property float z\nend_header\n0 0 0\n10 0 0\n0 10 0\n0 0 10\n");
+        write_scratch("m.ply",
+                      "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+                      "property float z\nend_header\n0 0 0\n10 0 0\n0 10 0\n0 0 10\n");
         return true;
     }();
     (void)files;

@@ -20,8 +20,6 @@ using namespace partloc::test;
 
 namespace {
 
-
-
 struct Outcome {
     int code = -1;
     std::string out, err;
@@ -239,7 +237,8 @@ TEST_F(CliRun, ModelCacheKeepsTheResultAndSaysWhatItCouldNotDo) {
 
 TEST_F(CliRun, VersionPrintsTheProjectsVersionAndExitsZero) {
     const fs::path out_txt = dir_ / "version.txt";
-    const int status = std::system(("'" + std::string(PARTLOC_EXE) + "' --version > '" + out_txt.string() + "'").c_str());
+    const int status =
+        std::system(("'" + std::string(PARTLOC_EXE) + "' --version > '" + out_txt.string() + "'").c_str());
     ASSERT_TRUE(WIFEXITED(status));
     EXPECT_EQ(WEXITSTATUS(status), 0);
     const std::string said = slurp(out_txt);

@@ -15,7 +15,6 @@
 #include <random>
 #include <sstream>
 
-#include "test_note.hpp"
 #include "partloc/core/datum_fit.hpp"
 #include "partloc/core/geometry.hpp"
 #include "partloc/core/workpiece_fit.hpp"
@@ -23,6 +22,7 @@
 #include "partloc/io/job_io.hpp"
 #include "partloc/io/job_writer.hpp"
 #include "partloc/sim/scenario.hpp"
+#include "test_note.hpp"
 #include "test_util.hpp"
 
 using namespace partloc;
@@ -145,7 +145,7 @@ TEST(PartFit, PointsScatteringFarMoreThanTheNoiseAreNotALocatedPart) {
     ws.noise = 0.02;
     const WorkpieceFit refused = fit_reference_surfaces(corner.all, reference, ws);
     partloc::test::note("rmse %.4f with the noise said 0.05, %.4f with 0.02: %s\n", right.rmse, refused.rmse,
-                refused.reason.c_str());
+                        refused.reason.c_str());
     EXPECT_FALSE(refused.valid);
     EXPECT_NE(refused.reason.find("did not find the part"), std::string::npos) << refused.reason;
 }
@@ -164,7 +164,7 @@ TEST(PartFit, PointsOnOneOrTwoFacesDoNotFixThePart) {
     const WorkpieceFit floor_and_wall = fit_reference_surfaces(two, cs.reference, cs.ws);
     const WorkpieceFit all = fit_reference_surfaces(corner.all, cs.reference, cs.ws);
     partloc::test::note("conditioning: one face %.5f, two %.5f, three %.5f\n", floor.conditioning,
-                floor_and_wall.conditioning, all.conditioning);
+                        floor_and_wall.conditioning, all.conditioning);
     for (const WorkpieceFit* f : {&floor, &floor_and_wall}) {
         EXPECT_FALSE(f->valid);
         EXPECT_NE(f->reason.find("to fix all six degrees of freedom"), std::string::npos) << f->reason;
@@ -221,8 +221,9 @@ TEST(DatumFit, HonoursThePrimaryWhereTheSimultaneousFitSplitsTheDifference) {
 
     // Square faces: both fits find the true corner.
     const PoseError s_sim = pose_error(s.sim, T_true), s_dat = pose_error(s.dat, T_true);
-    partloc::test::note("square corner: pose error %.4f mm %.5f deg (datums), %.4f mm %.5f deg (simultaneous)\n",
-                s_dat.translation, s_dat.rotation_deg, s_sim.translation, s_sim.rotation_deg);
+    partloc::test::note(
+        "square corner: pose error %.4f mm %.5f deg (datums), %.4f mm %.5f deg (simultaneous)\n",
+        s_dat.translation, s_dat.rotation_deg, s_sim.translation, s_sim.rotation_deg);
     EXPECT_LT(s_dat.translation, 0.01);
     EXPECT_LT(s_dat.rotation_deg, 0.01);
     EXPECT_LT(s_sim.translation, 0.01);
@@ -244,8 +245,8 @@ TEST(DatumFit, HonoursThePrimaryWhereTheSimultaneousFitSplitsTheDifference) {
         tilt, z_dat, z_sim, y_dat, angle_deg(t.dat.linear().col(2), nA), angle_deg(t.sim.linear().col(2), nA),
         t_dat.translation, t_dat.rotation_deg, t_sim.translation, t_sim.rotation_deg);
     for (const auto& d : t.datum_fit.datums)
-        partloc::test::note("  datum %s: %zu points, rmse %.4f mm, %d dof, conditioning %.3f\n", d.name.c_str(),
-                    d.points, d.rmse, d.dof, d.conditioning);
+        partloc::test::note("  datum %s: %zu points, rmse %.4f mm, %d dof, conditioning %.3f\n",
+                            d.name.c_str(), d.points, d.rmse, d.dof, d.conditioning);
     EXPECT_LT(z_dat, 0.001);
     EXPECT_LT(y_dat, 0.001);
     EXPECT_LT((t.dat.translation() - s.dat.translation()).norm(), 0.002);
@@ -273,8 +274,8 @@ TEST(DatumFit, HonoursThePrimaryWhereTheSimultaneousFitSplitsTheDifference) {
     // The residuals at the simultaneous pose, per datum: the primary pays for the compromise.
     const auto at_sim = evaluate_datums(cc.all, datums, t.sim_fit.T_located_nominal, dst);
     ASSERT_EQ(at_sim.size(), 3u);
-    partloc::test::note("  at the simultaneous pose: rmse A %.4f B %.4f C %.4f mm\n", at_sim[0].rmse, at_sim[1].rmse,
-                at_sim[2].rmse);
+    partloc::test::note("  at the simultaneous pose: rmse A %.4f B %.4f C %.4f mm\n", at_sim[0].rmse,
+                        at_sim[1].rmse, at_sim[2].rmse);
     EXPECT_GT(at_sim[0].rmse, r[0].rmse);
     EXPECT_LT(at_sim[2].rmse, r[2].rmse);
 }
@@ -436,8 +437,8 @@ TEST_P(DatumCell, BothFitsLocateTheTrueCornerFromTrulyRegisteredScans) {
     const PoseError e_dat = pose_error(dat.T_located_nominal * N, sj.truth.T_machine_workpiece);
     const PoseError nominal = pose_error(N, sj.truth.T_machine_workpiece);
     // One-sigma origin uncertainty of the datum fit from its covariance (noise^2 times the unit one). The
-    // covariance is of a twist [w, v] of T_located_nominal^-1 about the machine origin, which moves the located
-    // corner by -R (w x n + v), n the nominal corner: |.|^2 does not depend on R.
+    // covariance is of a twist [w, v] of T_located_nominal^-1 about the machine origin, which moves the
+    // located corner by -R (w x n + v), n the nominal corner: |.|^2 does not depend on R.
     const Eigen::Vector3d n = N.translation();
     Eigen::Matrix3d n_cross;
     n_cross << 0, -n.z(), n.y(), n.z(), 0, -n.x(), -n.y(), n.x(), 0;
@@ -451,8 +452,8 @@ TEST_P(DatumCell, BothFitsLocateTheTrueCornerFromTrulyRegisteredScans) {
         e_sim.translation, e_sim.rotation_deg, e_dat.translation, e_dat.rotation_deg,
         std::sqrt(cov_o.trace()));
     for (const auto& d : dat.datums)
-        partloc::test::note("  datum %s: %zu points, rmse %.4f mm, conditioning %.3f\n", d.name.c_str(), d.points,
-                    d.rmse, d.conditioning);
+        partloc::test::note("  datum %s: %zu points, rmse %.4f mm, conditioning %.3f\n", d.name.c_str(),
+                            d.points, d.rmse, d.conditioning);
     EXPECT_LT(e_dat.translation, 0.05);
     EXPECT_LT(e_dat.rotation_deg, 0.03);
     EXPECT_LT(e_sim.translation, 0.05);
@@ -510,9 +511,9 @@ TEST(DatumJob, FieldsDefaultsAndErrors) {
     EXPECT_TRUE(job.workpiece.datums.empty());
 
     expect_job_error(f.write("job.yaml", head + "  reference_surfaces: c.xyz\n  fit: datums\n"),
-                 "workpiece.fit: datums needs workpiece.datums");
+                     "workpiece.fit: datums needs workpiece.datums");
     expect_job_error(f.write("job.yaml", head + datums + "  fit: best\n"),
-                 "workpiece.fit: expected simultaneous or datums, found 'best'");
+                     "workpiece.fit: expected simultaneous or datums, found 'best'");
     expect_job_error(
         f.write("job.yaml", head + "  datums: [{name: A, surfaces: a.obj}, {name: B, surfaces: b.obj}]\n"),
         "workpiece.datums: expected 3 datums (primary, secondary, tertiary), found 2 items");
@@ -525,7 +526,7 @@ TEST(DatumJob, FieldsDefaultsAndErrors) {
                                    "{name: C, surfaces: a.obj}]\n"),
         "workpiece.datums[1].surface: unknown field");
     expect_job_error(f.write("job.yaml", head + "  final_part: a.obj\n"),
-                 "workpiece.reference_surfaces: missing");
+                     "workpiece.reference_surfaces: missing");
     try {
         io::load_job(f.write("job.yaml",
                              head + "  datums: [{name: A, surfaces: a.obj}, {name: B, surfaces: nope.stl}, "
@@ -563,8 +564,9 @@ TEST(DatumJob, RunLocatesByTheDatumsAndReportsEach) {
         for (int c = 0; c < 4; ++c)
             located.matrix()(r, c) = j["workpiece"]["T_machine_workpiece"][r][c].get<double>();
     const PoseError e = pose_error(located, sj.truth.T_machine_workpiece);
-    partloc::test::note("partloc run with datums, random cell 12: origin error %.4f mm, rotation error %.5f deg\n",
-                e.translation, e.rotation_deg);
+    partloc::test::note(
+        "partloc run with datums, random cell 12: origin error %.4f mm, rotation error %.5f deg\n",
+        e.translation, e.rotation_deg);
     EXPECT_LT(e.translation, 0.1);
     EXPECT_LT(e.rotation_deg, 0.05);
     EXPECT_TRUE(j["probed_poses"].empty());

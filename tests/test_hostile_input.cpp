@@ -69,13 +69,14 @@ class Hostile : public ::testing::Test {
 
     const fs::path& dir() const { return folder_.dir; }
 
-    std::string job(const std::string& scan = "scans/scan_01.ply", const std::string& fiducial = "models/box.stl",
-                    const std::string& reference = "models/slab.ply", const std::string& datum = "[-100, -100, 5]",
-                    const std::string& extra = "") const {
+    std::string job(const std::string& scan = "scans/scan_01.ply",
+                    const std::string& fiducial = "models/box.stl",
+                    const std::string& reference = "models/slab.ply",
+                    const std::string& datum = "[-100, -100, 5]", const std::string& extra = "") const {
         return "units: mm\n" + extra + "fiducials:\n  - name: box\n    model: " + fiducial +
                "\n    pose: {origin: [0, 0, 0], euler_xyz_deg: [0, 0, 0]}\n"
-               "workpiece:\n  reference_surfaces: " + reference + "\n  datum: {origin: " + datum +
-               "}\nscans:\n  - " + scan + "\n";
+               "workpiece:\n  reference_surfaces: " +
+               reference + "\n  datum: {origin: " + datum + "}\nscans:\n  - " + scan + "\n";
     }
 
     fs::path write_job(const std::string& text, const std::string& name = "job.yaml") const {
@@ -85,8 +86,8 @@ class Hostile : public ::testing::Test {
     /// `partloc run` under a time limit of 60 s (a hang is exit 124).
     Outcome run(const fs::path& job_file, const fs::path& out) const {
         const fs::path out_txt = dir() / "stdout.txt", err_txt = dir() / "stderr.txt";
-        const std::string cmd = "PARTLOC_CACHE='" + (dir() / "cache").string() + "' timeout 60 '" + PARTLOC_EXE +
-                                "' run '" + job_file.string() + "' --out '" + out.string() +
+        const std::string cmd = "PARTLOC_CACHE='" + (dir() / "cache").string() + "' timeout 60 '" +
+                                PARTLOC_EXE + "' run '" + job_file.string() + "' --out '" + out.string() +
                                 "' --threads 2 > '" + out_txt.string() + "' 2> '" + err_txt.string() + "'";
         const auto start = std::chrono::steady_clock::now();
         const int status = std::system(cmd.c_str());
@@ -161,27 +162,31 @@ TEST_F(Hostile, PlyCountOf10e12InASmallFile) {
 
 TEST_F(Hostile, VtkPointsBeyondSizeT) {
     // fuzz_vtk's first finding: a count of 3e40 cast to size_t (undefined).
-    spit(dir() / "scans/big.vtk", "# vtk DataFile Version 3.0\nscan\nASCII\nDATASET POLYDATA\n"
-                                  "POINTS 33333333333333333333333333333333333333333 float\n0 0 0\n");
+    spit(dir() / "scans/big.vtk",
+         "# vtk DataFile Version 3.0\nscan\nASCII\nDATASET POLYDATA\n"
+         "POINTS 33333333333333333333333333333333333333333 float\n0 0 0\n");
     expect_bad(job("scans/big.vtk"), "scans/big.vtk", "expected 'POINTS COUNT TYPE'");
 }
 
 TEST_F(Hostile, PcdPointsOf10e9And2e31InASmallAsciiFile) {
     for (const char* points : {"1000000000", "2147483648"}) {
-        spit(dir() / "scans/big.pcd", std::string("VERSION .7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
-                                                  "WIDTH ") + points + "\nHEIGHT 1\nPOINTS " + points +
-                                          "\nDATA ascii\n0 0 0\n1 0 0\n0 1 0\n");
+        spit(dir() / "scans/big.pcd",
+             std::string("VERSION .7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
+                         "WIDTH ") +
+                 points + "\nHEIGHT 1\nPOINTS " + points + "\nDATA ascii\n0 0 0\n1 0 0\n0 1 0\n");
         expect_bad(job("scans/big.pcd"), "scans/big.pcd", "truncated");
     }
 }
 
 TEST_F(Hostile, PcdCountOf10e12PerPointAsksNoMemory) {
     // values_per_point came from COUNT: the ascii reader asked for 8 TB.
-    spit(dir() / "scans/count.pcd", "VERSION .7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1000000000000\n"
-                                    "WIDTH 3\nHEIGHT 1\nPOINTS 3\nDATA ascii\n0 0 0\n1 0 0\n0 1 0\n");
+    spit(dir() / "scans/count.pcd",
+         "VERSION .7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1000000000000\n"
+         "WIDTH 3\nHEIGHT 1\nPOINTS 3\nDATA ascii\n0 0 0\n1 0 0\n0 1 0\n");
     expect_bad(job("scans/count.pcd"), "scans/count.pcd", "truncated");
-    spit(dir() / "scans/count.pcd", "VERSION .7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1000000000000\n"
-                                    "WIDTH 1000000000000\nHEIGHT 1\nPOINTS 1000000000000\nDATA binary\n0000");
+    spit(dir() / "scans/count.pcd",
+         "VERSION .7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1000000000000\n"
+         "WIDTH 1000000000000\nHEIGHT 1\nPOINTS 1000000000000\nDATA binary\n0000");
     expect_bad(job("scans/count.pcd"), "scans/count.pcd", "");
 }
 
@@ -203,8 +208,8 @@ TEST_F(Hostile, CountsSmallerThanTheDataAreAWarning) {
     EXPECT_NE(r["warnings"].dump().find("scans/short.vtk: numbers continue"), std::string::npos);
     // PCD binary: 10 points more than the header's.
     std::string pcd = "VERSION .7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH " +
-                      std::to_string(scan_.size() - 10) + "\nHEIGHT 1\nPOINTS " + std::to_string(scan_.size() - 10) +
-                      "\nVIEWPOINT 0 0 0 1 0 0 0\nDATA binary\n";
+                      std::to_string(scan_.size() - 10) + "\nHEIGHT 1\nPOINTS " +
+                      std::to_string(scan_.size() - 10) + "\nVIEWPOINT 0 0 0 1 0 0 0\nDATA binary\n";
     for (const auto& p : scan_)
         for (int k = 0; k < 3; ++k) {
             const float f = static_cast<float>(p[k]);
@@ -262,7 +267,8 @@ TEST_F(Hostile, HugeCoordinatesAreRefused) {
     spit(dir() / "scans/huge.ply", ply_ascii(huge));
     expect_bad(job("scans/huge.ply"), "scans/huge.ply", "coordinates reach");
     std::vector<Eigen::Vector3d> box;
-    for (int i = 0; i < 8; ++i) box.emplace_back(1e38 + 30.0 * (i & 1) * 1e37, 20.0 * ((i >> 1) & 1), 10.0 * (i >> 2));
+    for (int i = 0; i < 8; ++i)
+        box.emplace_back(1e38 + 30.0 * (i & 1) * 1e37, 20.0 * ((i >> 1) & 1), 10.0 * (i >> 2));
     spit(dir() / "models/far.ply", ply_ascii(box));
     expect_bad(job("scans/scan_01.ply", "models/far.ply"), "models/far.ply", "coordinates reach");
 }
@@ -282,7 +288,8 @@ TEST_F(Hostile, DegenerateFiducials) {
         beyond.push_back(giant.back() * 1e6 / 1e4);
     }
     spit(dir() / "models/giant.ply", ply_ascii(giant));
-    expect_bad(job("scans/scan_01.ply", "models/giant.ply"), "models/giant.ply", "times larger than the largest scan");
+    expect_bad(job("scans/scan_01.ply", "models/giant.ply"), "models/giant.ply",
+               "times larger than the largest scan");
     spit(dir() / "models/beyond.ply", ply_ascii(beyond));
     expect_bad(job("scans/scan_01.ply", "models/beyond.ply"), "models/beyond.ply", "coordinates reach");
 }
@@ -297,7 +304,8 @@ TEST_F(Hostile, DegenerateReferenceSurfaces) {
     expect_bad(job("scans/scan_01.ply", "models/box.stl", "models/refline.ply"), "models/refline.ply",
                "lie on one line");
     spit(dir() / "models/ref2.ply", ply_ascii({{-100, -100, 5}, {-20, -100, 5}}));
-    expect_bad(job("scans/scan_01.ply", "models/box.stl", "models/ref2.ply"), "models/ref2.ply", "has only 2");
+    expect_bad(job("scans/scan_01.ply", "models/box.stl", "models/ref2.ply"), "models/ref2.ply",
+               "has only 2");
 }
 
 TEST_F(Hostile, TinyScannerSpacingIsRefused) {
@@ -319,7 +327,8 @@ TEST_F(Hostile, OneFarPointIsDroppedWithAWarning) {
     EXPECT_EQ(far["scans"][0]["status"], plain["scans"][0]["status"]);
     EXPECT_EQ(far["scans"][0]["T_machine_scan"], plain["scans"][0]["T_machine_scan"]);
     ASSERT_TRUE(far.contains("warnings"));
-    EXPECT_NE(far["warnings"].dump().find("scans/far.ply: 1 point lies"), std::string::npos) << far["warnings"];
+    EXPECT_NE(far["warnings"].dump().find("scans/far.ply: 1 point lies"), std::string::npos)
+        << far["warnings"];
     EXPECT_TRUE(!plain.contains("warnings") || plain["warnings"].empty()) << plain["warnings"];
 }
 
@@ -333,10 +342,11 @@ TEST_F(Hostile, NearlyDegenerateInputIsNeverAnInternalError) {
     for (int i = 0; i < 50; ++i) random_fid.emplace_back(i * 13 % 29, i * 7 % 17, i * 11 % 19);
     dup = scan_;
     for (int i = 0; i < 3000; ++i) dup.push_back(scan_[0]);
-    const std::pair<std::string, std::string> cases[] = {
-        {"scans/few.ply", "models/box.stl"},  {"scans/thin.ply", "models/box.stl"},
-        {"scans/dup.ply", "models/box.stl"},  {"scans/scan_01.ply", "models/tetra.ply"},
-        {"scans/scan_01.ply", "models/random.ply"}};
+    const std::pair<std::string, std::string> cases[] = {{"scans/few.ply", "models/box.stl"},
+                                                         {"scans/thin.ply", "models/box.stl"},
+                                                         {"scans/dup.ply", "models/box.stl"},
+                                                         {"scans/scan_01.ply", "models/tetra.ply"},
+                                                         {"scans/scan_01.ply", "models/random.ply"}};
     spit(dir() / "scans/few.ply", ply_ascii(few));
     spit(dir() / "scans/thin.ply", ply_ascii(thin));
     spit(dir() / "scans/dup.ply", ply_ascii(dup));
@@ -345,8 +355,8 @@ TEST_F(Hostile, NearlyDegenerateInputIsNeverAnInternalError) {
     int k = 0;
     for (const auto& [scan, fiducial] : cases) {
         const Outcome r = run(write_job(job(scan, fiducial)), dir() / ("out_edge" + std::to_string(k++)));
-        EXPECT_TRUE(r.code == 0 || r.code == 2 || r.code == 3) << scan << " " << fiducial << ": exit " << r.code
-                                                               << ": " << r.err;
+        EXPECT_TRUE(r.code == 0 || r.code == 2 || r.code == 3)
+            << scan << " " << fiducial << ": exit " << r.code << ": " << r.err;
         EXPECT_LT(r.seconds, 30);
         if (r.code == 2)
             EXPECT_TRUE(r.err.find(scan) != std::string::npos || r.err.find(fiducial) != std::string::npos)
@@ -364,7 +374,8 @@ TEST_F(Hostile, AbsurdNumbersInTheJobAreRefused) {
                "workpiece.datum.origin[0]: expected a number");
     expect_bad(job("scans/scan_01.ply", "models/box.stl", "models/slab.ply", "[1e999, 0, 0]"), job_file,
                "workpiece.datum.origin[0]: expected a number");
-    expect_bad(job("scans/scan_01.ply", "models/box.stl", "models/slab.ply", "[0, 0, 0], euler_xyz_deg: [1e300, 0, 0]"),
+    expect_bad(job("scans/scan_01.ply", "models/box.stl", "models/slab.ply",
+                   "[0, 0, 0], euler_xyz_deg: [1e300, 0, 0]"),
                job_file, "euler_xyz_deg");
 }
 
@@ -372,8 +383,9 @@ TEST_F(Hostile, AxisDirectionLengthDoesNotMatter) {
     std::string results[3];
     const char* directions[] = {"[1, 0, 0]", "[1e200, 0, 0]", "[1e-200, 0, 0]"};
     for (int i = 0; i < 3; ++i) {
-        const std::string machine = std::string("machine:\n  axes:\n    - {name: A, type: rotary, direction: ") +
-                                    directions[i] + ", point: [0, 0, 0]}\n";
+        const std::string machine =
+            std::string("machine:\n  axes:\n    - {name: A, type: rotary, direction: ") + directions[i] +
+            ", point: [0, 0, 0]}\n";
         std::string text = job("{file: scans/scan_01.ply, axes: {A: 0}}", "models/box.stl", "models/slab.ply",
                                "[-100, -100, 5]", machine);
         const Job loaded = io::load_job(write_job(text));
@@ -385,14 +397,15 @@ TEST_F(Hostile, AxisDirectionLengthDoesNotMatter) {
     EXPECT_EQ(results[1], results[0]);
     EXPECT_EQ(results[2], results[0]);
     // Not along an axis: the same as the unit vector, to the last bit or one.
-    const Job tilted = io::load_job(write_job(job("scans/scan_01.ply", "models/box.stl", "models/slab.ply",
-                                                  "[-100, -100, 5]",
-                                                  "machine:\n  axes:\n    - {name: A, type: linear, direction: "
-                                                  "[3e200, 4e200, 0]}\n")));
+    const Job tilted = io::load_job(
+        write_job(job("scans/scan_01.ply", "models/box.stl", "models/slab.ply", "[-100, -100, 5]",
+                      "machine:\n  axes:\n    - {name: A, type: linear, direction: "
+                      "[3e200, 4e200, 0]}\n")));
     EXPECT_NEAR((tilted.machine.axes[0].direction - Eigen::Vector3d(0.6, 0.8, 0)).norm(), 0, 1e-15);
-    expect_job_error(write_job(job("scans/scan_01.ply", "models/box.stl", "models/slab.ply", "[-100, -100, 5]",
-                                   "machine:\n  axes:\n    - {name: A, type: linear, direction: [0, 0, 0]}\n")),
-                     "must not be zero");
+    expect_job_error(
+        write_job(job("scans/scan_01.ply", "models/box.stl", "models/slab.ply", "[-100, -100, 5]",
+                      "machine:\n  axes:\n    - {name: A, type: linear, direction: [0, 0, 0]}\n")),
+        "must not be zero");
 }
 
 // --- names and the output folder ---

@@ -16,10 +16,10 @@
 
 #include "partloc/core/geometry.hpp"
 #include "partloc/io/cloud_io.hpp"
-#include "test_util.hpp"
 #include "partloc/io/job_io.hpp"
 #include "partloc/io/report_html.hpp"
 #include "partloc/io/result_io.hpp"
+#include "test_util.hpp"
 
 using namespace partloc;
 using namespace partloc::test;
@@ -29,8 +29,6 @@ namespace fs = std::filesystem;
 namespace {
 
 fs::path data(const std::string& rel) { return fs::path(PARTLOC_DATA_DIR) / rel; }
-
-
 
 /// The count a file's own header gives after `keyword` ("element vertex", "element face", "POINTS"), read
 /// here independently of the readers under test.

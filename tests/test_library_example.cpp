@@ -35,19 +35,23 @@ int run(const std::string& cmd) {
 }  // namespace
 
 TEST(LibraryExample, ReadmeShowsTheExampleThatIsBuilt) {
-    const std::string example = block(slurp(PARTLOC_SOURCE_DIR "/examples/locate.cpp"), "// [readme]\n", "// [/readme]");
-    const std::string readme = block(slurp(PARTLOC_SOURCE_DIR "/README.md"), "```cpp\n", "```\n<!-- /LIBRARY-EXAMPLE -->");
+    const std::string example =
+        block(slurp(PARTLOC_SOURCE_DIR "/examples/locate.cpp"), "// [readme]\n", "// [/readme]");
+    const std::string readme =
+        block(slurp(PARTLOC_SOURCE_DIR "/README.md"), "```cpp\n", "```\n<!-- /LIBRARY-EXAMPLE -->");
     ASSERT_FALSE(example.empty());
-    EXPECT_NE(readme.find(example), std::string::npos) << "README's example differs from examples/locate.cpp:\n"
-                                                       << readme << "\n---\n" << example;
+    EXPECT_NE(readme.find(example), std::string::npos)
+        << "README's example differs from examples/locate.cpp:\n"
+        << readme << "\n---\n"
+        << example;
 }
 
 TEST(LibraryExample, LocatesASimulatedCell) {
     partloc::test::TempFolder tmp("partloc_example");
     const fs::path cell = tmp.dir / "cell", out = tmp.dir / "out", said = tmp.dir / "stdout.txt";
     ASSERT_EQ(run("'" PARTLOC_EXE "' simulate --out '" + cell.string() + "' --seed 3 > /dev/null"), 0);
-    ASSERT_EQ(run("'" PARTLOC_EXAMPLE_EXE "' '" + (cell / "job.yaml").string() + "' '" + out.string() + "' > '" +
-                  said.string() + "' 2>&1"),
+    ASSERT_EQ(run("'" PARTLOC_EXAMPLE_EXE "' '" + (cell / "job.yaml").string() + "' '" + out.string() +
+                  "' > '" + said.string() + "' 2>&1"),
               0)
         << slurp(said);
     const std::string text = slurp(said);

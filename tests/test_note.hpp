@@ -17,7 +17,8 @@ inline std::string& notes() {
 #if defined(__GNUC__)
 __attribute__((format(printf, 1, 2)))
 #endif
-inline void note(const char* format, ...) {
+inline void
+note(const char* format, ...) {
     char line[2048];
     va_list args;
     va_start(args, format);

@@ -12,12 +12,12 @@
 #include <random>
 #include <sstream>
 
-#include "test_note.hpp"
 #include "partloc/core/geometry.hpp"
 #include "partloc/core/probe_planes.hpp"
 #include "partloc/io/job_io.hpp"
 #include "partloc/io/result_io.hpp"
 #include "partloc/sim/shapes.hpp"
+#include "test_note.hpp"
 #include "test_util.hpp"
 
 using namespace partloc;
@@ -227,7 +227,6 @@ std::string job_text(const std::string& units, const std::string& pose_a, const 
            datum + "\nscans: [scan.xyz]\n";
 }
 
-
 }  // namespace
 
 TEST(ProbePlanesJob, FiducialAndDatumPosesFromProbedPoints) {
@@ -295,20 +294,20 @@ TEST(ProbePlanesJob, BadProbingIsOneLineNamingTheField) {
     Planes p = good;
     p[1].resize(2);
     expect_job_error(f.write("job.yaml", job_text("mm", yaml_planes(p), datum)),
-                 "fiducials[0].pose.probe_planes[1]: needs at least 3 points, found 2 (line 3)");
+                     "fiducials[0].pose.probe_planes[1]: needs at least 3 points, found 2 (line 3)");
     p = good;
     std::swap(p[0], p[2]);
     expect_job_error(f.write("job.yaml", job_text("mm", yaml_planes(p), datum)),
-                 "fiducials[0].pose.probe_planes: the planes, in this order, make a left-handed frame");
+                     "fiducials[0].pose.probe_planes: the planes, in this order, make a left-handed frame");
     p = good;
     p[2][4] += Eigen::Vector3d(0, 0, 5);
     expect_job_error(f.write("job.yaml", job_text("mm", datum, yaml_planes(p))),
-                 "workpiece.datum.probe_planes[2]: the points are not on one plane");
+                     "workpiece.datum.probe_planes[2]: the points are not on one plane");
     expect_job_error(
         f.write("job.yaml", job_text("mm", "{probe_planes: [[[0, 0, 0], [1, 0, 0], [0, 1, 0]]]}", datum)),
         "fiducials[0].pose.probe_planes: expected 3 lists of probed points");
     expect_job_error(f.write("job.yaml", job_text("mm", "{probe_planes: [[[0, 0]], [], []]}", datum)),
-                 "fiducials[0].pose.probe_planes[0][0]: expected 3 numbers, found 2 items");
+                     "fiducials[0].pose.probe_planes[0][0]: expected 3 numbers, found 2 items");
     expect_job_error(
         f.write("job.yaml", job_text("mm", "{probe_planes: [[], [], []], origin: [0, 0, 0]}", datum)),
         "fiducials[0].pose.origin: unknown field (known here: probe_planes)");

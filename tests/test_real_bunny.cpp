@@ -10,8 +10,8 @@
 #include <map>
 #include <sstream>
 
-#include "test_note.hpp"
 #include "partloc/pipeline/run.hpp"
+#include "test_note.hpp"
 
 using namespace partloc;
 
@@ -55,7 +55,7 @@ TEST(RealBunny, EveryScanLandsWhereBunConfSays) {
     job.fiducials.push_back(f);
     job.workpiece.reference_surfaces.mesh = mesh;
     const std::vector<std::string> files{"bun000.ply", "bun045.ply", "bun090.ply", "bun180.ply",
-                                         "bun270.ply", "bun315.ply", "top2.ply", "top3.ply"};
+                                         "bun270.ply", "bun315.ply", "top2.ply",   "top3.ply"};
     for (const auto& file : files) {
         auto pc = std::make_shared<open3d::geometry::PointCloud>();
         ASSERT_TRUE(open3d::io::ReadPointCloud(kDir + file, *pc));
@@ -72,10 +72,12 @@ TEST(RealBunny, EveryScanLandsWhereBunConfSays) {
         {
             const auto& f = r.fits[0];
             const Eigen::Isometry3d E = f.T_scan_fiducial * P;  // identity when the fit is right
-            partloc::test::note("%s fit: err %.2f deg %.2f mm inl %zu cov %.2f viol %.3f cond %.4f rmse %.3f mm noise %.3f mm spacing %.3f\n",
-                        files[i].c_str(), rotation_angle_deg(E.linear()),
-                        1000 * (E * bunny_centre - bunny_centre).norm(), f.inliers, f.coverage, f.violation,
-                        f.conditioning, 1000 * f.rmse, 1000 * r.noise, 1000 * r.point_spacing);
+            partloc::test::note(
+                "%s fit: err %.2f deg %.2f mm inl %zu cov %.2f viol %.3f cond %.4f rmse %.3f mm noise %.3f "
+                "mm spacing %.3f\n",
+                files[i].c_str(), rotation_angle_deg(E.linear()),
+                1000 * (E * bunny_centre - bunny_centre).norm(), f.inliers, f.coverage, f.violation,
+                f.conditioning, 1000 * f.rmse, 1000 * r.noise, 1000 * r.point_spacing);
         }
         EXPECT_TRUE(r.valid);
         if (!r.valid) continue;
@@ -83,7 +85,8 @@ TEST(RealBunny, EveryScanLandsWhereBunConfSays) {
         EXPECT_LT(rotation_angle_deg(D.linear()), 1.0);
         EXPECT_LT((D * bunny_centre - bunny_centre).norm(), 0.002);
         partloc::test::note("%s: rotation %.3f deg, at bunny %.3f mm, rmse %.3f mm, coverage %.2f, %.1f s\n",
-                    files[i].c_str(), rotation_angle_deg(D.linear()), 1000 * (D * bunny_centre - bunny_centre).norm(),
-                    1000 * r.rmse, r.fits[0].coverage, r.seconds);
+                            files[i].c_str(), rotation_angle_deg(D.linear()),
+                            1000 * (D * bunny_centre - bunny_centre).norm(), 1000 * r.rmse,
+                            r.fits[0].coverage, r.seconds);
     }
 }

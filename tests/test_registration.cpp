@@ -6,10 +6,10 @@
 
 #include <random>
 
-#include "test_note.hpp"
 #include "partloc/core/localize.hpp"
 #include "partloc/core/surface.hpp"
 #include "partloc/sim/shapes.hpp"
+#include "test_note.hpp"
 
 using namespace partloc;
 
@@ -44,7 +44,8 @@ std::shared_ptr<open3d::geometry::PointCloud> view(const open3d::geometry::Trian
 Eigen::Isometry3d random_pose(std::mt19937& rng) {
     std::uniform_real_distribution<double> u(-1, 1);
     Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-    T.linear() = Eigen::Quaterniond(Eigen::Vector4d(u(rng), u(rng), u(rng), u(rng)).normalized()).toRotationMatrix();
+    T.linear() =
+        Eigen::Quaterniond(Eigen::Vector4d(u(rng), u(rng), u(rng), u(rng)).normalized()).toRotationMatrix();
     T.translation() = Eigen::Vector3d(50 * u(rng), 50 * u(rng), 400 + 50 * u(rng));
     return T;
 }
@@ -92,8 +93,8 @@ TEST(Localize, FindsTheBlockFromAnyPoseWithNoInitialGuess) {
             continue;
         }
         const PoseError e = pose_error(fit.T_scan_fiducial, T);
-        partloc::test::note("trial %d: %.4f mm %.4f deg, conditioning %.4f, %zu points\n", trial, e.translation,
-                    e.rotation_deg, fit.conditioning, fit.inliers);
+        partloc::test::note("trial %d: %.4f mm %.4f deg, conditioning %.4f, %zu points\n", trial,
+                            e.translation, e.rotation_deg, fit.conditioning, fit.inliers);
         // Where the view fixes every direction well the fit is exact to the noise; where one direction is
         // held only by a narrow face (low conditioning) edge effects leave up to about 0.1 mm along it.
         const bool well_seen = fit.conditioning > 0.02;

@@ -12,12 +12,12 @@
 #include <random>
 #include <vector>
 
-#include "test_note.hpp"
 #include "partloc/core/radius_grid.hpp"
 #include "partloc/core/stock.hpp"
 #include "partloc/core/surface.hpp"
 #include "partloc/pipeline/run.hpp"
 #include "partloc/sim/scenario.hpp"
+#include "test_note.hpp"
 
 using namespace partloc;
 
@@ -166,7 +166,7 @@ TEST(Stock, BoxWithNoiseIsMeshedOnItsSurfaceFacingOut) {
     const double med = quantile(d, 0.5), p95 = quantile(d, 0.95),
                  worst = *std::max_element(d.begin(), d.end());
     partloc::test::note("box: %zu triangles, vertex distance median %.4f p95 %.4f max %.4f mm\n",
-                m->triangles_.size(), med, p95, worst);
+                        m->triangles_.size(), med, p95, worst);
     // Measured: median 0.0043, 95th percentile 0.038, max 0.24 mm for noise 0.03 mm; the tail is along the
     // edges and at the corners, which the cells (1.5 spacings) cut.
     EXPECT_LT(med, 0.01);
@@ -184,7 +184,8 @@ TEST(Stock, BoxWithNoiseIsMeshedOnItsSurfaceFacingOut) {
     const double covered =
         static_cast<double>(std::count_if(back.begin(), back.end(), [](double x) { return x <= kSpacing; })) /
         back.size();
-    partloc::test::note("box: %.4f of %zu true samples within one voxel of the stock\n", covered, back.size());
+    partloc::test::note("box: %.4f of %zu true samples within one voxel of the stock\n", covered,
+                        back.size());
     EXPECT_GT(covered, 0.99);  // measured: 1.0000
 }
 
@@ -222,8 +223,8 @@ TEST(Stock, CylinderWithNoiseIsMeshedOnItsSurfaceFacingOut) {
     const auto d =
         vertex_distances(*m, [&](const Eigen::Vector3d& p) { return cylinder_distance(p, r, height); });
     const double med = quantile(d, 0.5), p95 = quantile(d, 0.95);
-    partloc::test::note("cylinder: %zu triangles, vertex distance median %.4f p95 %.4f mm\n", m->triangles_.size(),
-                med, p95);
+    partloc::test::note("cylinder: %zu triangles, vertex distance median %.4f p95 %.4f mm\n",
+                        m->triangles_.size(), med, p95);
     // Measured: median 0.0094, 95th percentile 0.037 mm.
     EXPECT_LT(med, 0.015);
     EXPECT_LT(p95, 0.06);

@@ -11,13 +11,13 @@
 #include <thread>
 #include <utility>
 
-#include "test_note.hpp"
 #include "partloc/core/cloud_stats.hpp"
 #include "partloc/core/geometry.hpp"
 #include "partloc/core/icp.hpp"
 #include "partloc/core/radius_grid.hpp"
 #include "partloc/core/sample_grid.hpp"
 #include "partloc/core/surface.hpp"
+#include "test_note.hpp"
 
 using namespace partloc;
 
@@ -38,8 +38,9 @@ void expect_same_as_kdtree(const std::vector<Eigen::Vector3d>& pts, double grid_
         // Half the queries near a sample (as the fits ask), half anywhere.
         std::uniform_int_distribution<std::size_t> pick(0, pts.size() - 1);
         std::normal_distribution<double> g(0.0, spacing);
-        const Eigen::Vector3d p = q % 2 ? Eigen::Vector3d(u(rng), u(rng), u(rng))
-                                        : Eigen::Vector3d(pts[pick(rng)] + Eigen::Vector3d(g(rng), g(rng), g(rng)));
+        const Eigen::Vector3d p =
+            q % 2 ? Eigen::Vector3d(u(rng), u(rng), u(rng))
+                  : Eigen::Vector3d(pts[pick(rng)] + Eigen::Vector3d(g(rng), g(rng), g(rng)));
         const int k = kk(rng);
         const double bound = bounds[q % 4];
         std::vector<int> ti;
@@ -50,7 +51,8 @@ void expect_same_as_kdtree(const std::vector<Eigen::Vector3d>& pts, double grid_
         int gi[SampleGrid::kMaxK];
         double gd[SampleGrid::kMaxK];
         const int found = grid.nearest(p, k, bound, gi, gd);
-        ASSERT_EQ(static_cast<std::size_t>(found), expected) << "query " << q << " k " << k << " bound " << bound;
+        ASSERT_EQ(static_cast<std::size_t>(found), expected)
+            << "query " << q << " k " << k << " bound " << bound;
         for (int j = 0; j < found; ++j) {
             EXPECT_NEAR(gd[j], td[j], 1e-12 * (1 + td[j]));
             // Equal distances may come in either order; the point must then be as far as the tree's.
@@ -119,7 +121,8 @@ TEST(NearestMap, AnswersASampleWithinACellDiagonalOfTheNearest) {
     std::uniform_int_distribution<std::size_t> pick(0, s.points.size() - 1);
     std::normal_distribution<double> g(0.0, 1.0);
     std::vector<Eigen::Vector3d> queries;
-    for (int q = 0; q < 5000; ++q) queries.push_back(s.points[pick(rng)] + Eigen::Vector3d(g(rng), g(rng), g(rng)));
+    for (int q = 0; q < 5000; ++q)
+        queries.push_back(s.points[pick(rng)] + Eigen::Vector3d(g(rng), g(rng), g(rng)));
     int answered = 0;
     std::vector<int> first(queries.size());
     for (std::size_t q = 0; q < queries.size(); ++q) {
@@ -170,9 +173,11 @@ TEST(NearestMap, AFitWithApproximateCoarseStagesEndsAtTheExactFitsPose) {
     std::normal_distribution<double> noise(0.0, 0.05);
     const auto dense = sample_mesh(a, 0.3);
     std::vector<Eigen::Vector3d> source;
-    for (const auto& p : dense->points_) source.push_back(p + Eigen::Vector3d(noise(rng), noise(rng), noise(rng)));
+    for (const auto& p : dense->points_)
+        source.push_back(p + Eigen::Vector3d(noise(rng), noise(rng), noise(rng)));
     Eigen::Isometry3d off = Eigen::Isometry3d::Identity();
-    off.linear() = Eigen::AngleAxisd(6.0 * M_PI / 180.0, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
+    off.linear() =
+        Eigen::AngleAxisd(6.0 * M_PI / 180.0, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
     off.translation() = Eigen::Vector3d(1.5, -1.0, 0.8);
     IcpSettings exact;
     exact.max_distances = {3.0, 1.5, 0.4};
@@ -206,7 +211,8 @@ TEST(RadiusGrid, SamePointsAsTheKdTreesRadiusSearch) {
         const RadiusGrid grid(pts, cell);
         int nonempty = 0;
         for (int q = 0; q < 300; ++q) {
-            const Eigen::Vector3d c = q % 3 ? pts[q * 97 % pts.size()] : Eigen::Vector3d(u(rng), u(rng), u(rng));
+            const Eigen::Vector3d c =
+                q % 3 ? pts[q * 97 % pts.size()] : Eigen::Vector3d(u(rng), u(rng), u(rng));
             const double r = 0.5 + 60.0 * (q % 7) / 6.0;
             std::vector<int> ti, gi;
             std::vector<double> td;
@@ -264,8 +270,9 @@ TEST(ComposedSurface, AnswersWhatOneGridOverAllTheSamplesAnswers) {
     std::uniform_real_distribution<double> u(-400, 400);
     int found_some = 0;
     for (int q = 0; q < 6000; ++q) {
-        const Eigen::Vector3d p = q % 3 ? Eigen::Vector3d(composed.points[pick(rng)] + Eigen::Vector3d(g(rng), g(rng), g(rng)))
-                                        : Eigen::Vector3d(u(rng), u(rng), u(rng));
+        const Eigen::Vector3d p =
+            q % 3 ? Eigen::Vector3d(composed.points[pick(rng)] + Eigen::Vector3d(g(rng), g(rng), g(rng)))
+                  : Eigen::Vector3d(u(rng), u(rng), u(rng));
         const int k = 1 + q % 6;
         const double bound = q % 2 ? 2.0 : 1e30;
         int ia[SampleGrid::kMaxK], ib[SampleGrid::kMaxK];

@@ -81,8 +81,9 @@ TEST(ProbingUncertainty, OneFiducialFixingEveryScanMovesThePartByItsWholeError) 
     estimate_uncertainty(c.job, c.in, c.w);
     const auto& u = c.w.uncertainty;
     ASSERT_TRUE(u.available);
-    const Eigen::Vector3d arm = Eigen::Vector3d::Zero() - Eigen::Vector3d(110.0, 10.0, 10.0);  // to the centre
-    const double turn = sigma / (0.5 * std::sqrt(3.0) * 20.0);                                // radians
+    const Eigen::Vector3d arm =
+        Eigen::Vector3d::Zero() - Eigen::Vector3d(110.0, 10.0, 10.0);  // to the centre
+    const double turn = sigma / (0.5 * std::sqrt(3.0) * 20.0);         // radians
     for (int a = 0; a < 3; ++a) {
         const double lever2 = arm.squaredNorm() - arm(a) * arm(a);
         EXPECT_NEAR(u.origin_probing(a), std::sqrt(sigma * sigma + turn * turn * lever2), 1e-9) << a;
@@ -117,7 +118,8 @@ TEST(ProbingUncertainty, TwoFiducialsHoldingEachScanEquallyShareItsError) {
     estimate_uncertainty(two.job, two.in, two.w);
     ASSERT_TRUE(two.w.uncertainty.available);
     for (int a = 0; a < 3; ++a) {
-        const double expect = 0.5 * std::hypot(one.w.uncertainty.origin_probing(a), g.w.uncertainty.origin_probing(a));
+        const double expect =
+            0.5 * std::hypot(one.w.uncertainty.origin_probing(a), g.w.uncertainty.origin_probing(a));
         EXPECT_NEAR(two.w.uncertainty.origin_probing(a), expect, 1e-9) << a;
     }
 }

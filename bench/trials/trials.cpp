@@ -25,11 +25,11 @@
 #include <random>
 #include <string>
 
+#include "common.hpp"
 #include "partloc/core/geometry.hpp"
 #include "partloc/core/icp.hpp"
 #include "partloc/pipeline/run.hpp"
 #include "partloc/sim/scenario.hpp"
-#include "common.hpp"
 
 using namespace partloc;
 
@@ -46,8 +46,10 @@ std::string kind_of(const std::string& message) {
     std::string k = message.substr(0, message.find(':'));
     if (k.rfind("fiducials ", 0) == 0) return "fiducials ... disagree";
     if (k.rfind("only ", 0) == 0) {
-        if (message.find("does not confirm") != std::string::npos) return "only one fiducial: the part does not confirm it";
-        if (message.find("lies") != std::string::npos) return "only one fiducial: its part lies off the located one";
+        if (message.find("does not confirm") != std::string::npos)
+            return "only one fiducial: the part does not confirm it";
+        if (message.find("lies") != std::string::npos)
+            return "only one fiducial: its part lies off the located one";
         return "only one fiducial: nothing in the workpiece's region";
     }
     return k;
@@ -81,7 +83,8 @@ void count_scans(const sim::SimulatedJob& sj, const JobResult& r, std::size_t re
     }
 }
 
-std::shared_ptr<open3d::geometry::PointCloud> keep(const sim::SimulatedJob& sj, std::size_t scan, bool (*pred)(const sim::Body&)) {
+std::shared_ptr<open3d::geometry::PointCloud> keep(const sim::SimulatedJob& sj, std::size_t scan,
+                                                   bool (*pred)(const sim::Body&)) {
     auto out = std::make_shared<open3d::geometry::PointCloud>();
     const auto& s = sj.scans[scan];
     for (std::size_t k = 0; k < s.points->points_.size(); ++k) {
@@ -105,7 +108,9 @@ int main(int argc, char** argv) {
     Eigen::Vector3d se_o = Eigen::Vector3d::Zero(), se_e = Eigen::Vector3d::Zero();
     Eigen::Vector3d sb_o = Eigen::Vector3d::Zero(), sb_e = Eigen::Vector3d::Zero();
     Eigen::Vector3d su_o = Eigen::Vector3d::Zero(), su_e = Eigen::Vector3d::Zero();
-    std::printf("seed   origin error x y z (mm)          half-width x y z (mm)           euler error a b c (deg)        half-width a b c (deg)         run_s\n");
+    std::printf(
+        "seed   origin error x y z (mm)          half-width x y z (mm)           euler error a b c (deg)     "
+        "   half-width a b c (deg)         run_s\n");
     for (int t = 0; t < count; ++t) {
         const std::uint64_t seed = first + t;
         sim::ScenarioOptions opt;
@@ -148,19 +153,21 @@ int main(int argc, char** argv) {
         std::printf("%4llu  ", static_cast<unsigned long long>(seed));
         if (r.workpiece.valid) {
             ++located;
-            const Eigen::Vector3d eo = r.workpiece.T_machine_workpiece.translation() - sj.truth.T_machine_workpiece.translation();
+            const Eigen::Vector3d eo =
+                r.workpiece.T_machine_workpiece.translation() - sj.truth.T_machine_workpiece.translation();
             const Eigen::Vector3d a = euler_xyz_deg(r.workpiece.T_machine_workpiece.linear());
             const Eigen::Vector3d b = euler_xyz_deg(sj.truth.T_machine_workpiece.linear());
-            const Eigen::Vector3d ee(wrap_deg(a.x() - b.x()), wrap_deg(a.y() - b.y()), wrap_deg(a.z() - b.z()));
+            const Eigen::Vector3d ee(wrap_deg(a.x() - b.x()), wrap_deg(a.y() - b.y()),
+                                     wrap_deg(a.z() - b.z()));
             const PoseError pe = pose_error(r.workpiece.T_machine_workpiece, sj.truth.T_machine_workpiece);
             sum_o += pe.translation;
             worst_o = std::max(worst_o, pe.translation);
             sum_r += pe.rotation_deg;
             worst_r = std::max(worst_r, pe.rotation_deg);
             const auto& u = r.workpiece.uncertainty;
-            std::printf("%9.4f %9.4f %9.4f   %9.4f %9.4f %9.4f   %9.4f %9.4f %9.4f   %9.4f %9.4f %9.4f", eo.x(), eo.y(),
-                        eo.z(), u.origin.x(), u.origin.y(), u.origin.z(), ee.x(), ee.y(), ee.z(), u.euler_deg.x(),
-                        u.euler_deg.y(), u.euler_deg.z());
+            std::printf("%9.4f %9.4f %9.4f   %9.4f %9.4f %9.4f   %9.4f %9.4f %9.4f   %9.4f %9.4f %9.4f",
+                        eo.x(), eo.y(), eo.z(), u.origin.x(), u.origin.y(), u.origin.z(), ee.x(), ee.y(),
+                        ee.z(), u.euler_deg.x(), u.euler_deg.y(), u.euler_deg.z());
             if (u.available) {
                 ++with_u;
                 se_o += eo.cwiseAbs2();
@@ -181,35 +188,40 @@ int main(int argc, char** argv) {
         if (r.workpiece.valid && r.workpiece.uncertainty.available) {
             // The 1-sigma parts the half-widths come from, to calibrate how they combine.
             const auto& u = r.workpiece.uncertainty;
-            std::printf("      sigma scans %.4f %.4f %.4f %.4f %.4f %.4f probing %.4f %.4f %.4f %.4f %.4f %.4f "
-                        "noise %.4f %.4f %.4f %.4f %.4f %.4f jackknife %d rmse %.4f points %zu inliers %zu "
-                        "probing_in_scans %.4f %.4f %.4f %.4f %.4f %.4f\n",
-                        u.origin_scans.x(), u.origin_scans.y(), u.origin_scans.z(), u.euler_scans.x(),
-                        u.euler_scans.y(), u.euler_scans.z(), u.origin_probing.x(), u.origin_probing.y(),
-                        u.origin_probing.z(), u.euler_probing.x(), u.euler_probing.y(), u.euler_probing.z(),
-                        u.origin_noise.x(), u.origin_noise.y(), u.origin_noise.z(), u.euler_noise.x(),
-                        u.euler_noise.y(), u.euler_noise.z(), u.scans, r.workpiece.rmse, r.workpiece.points,
-                        r.workpiece.inliers, u.origin_probing_in_scans.x(), u.origin_probing_in_scans.y(),
-                        u.origin_probing_in_scans.z(), u.euler_probing_in_scans.x(), u.euler_probing_in_scans.y(),
-                        u.euler_probing_in_scans.z());
+            std::printf(
+                "      sigma scans %.4f %.4f %.4f %.4f %.4f %.4f probing %.4f %.4f %.4f %.4f %.4f %.4f "
+                "noise %.4f %.4f %.4f %.4f %.4f %.4f jackknife %d rmse %.4f points %zu inliers %zu "
+                "probing_in_scans %.4f %.4f %.4f %.4f %.4f %.4f\n",
+                u.origin_scans.x(), u.origin_scans.y(), u.origin_scans.z(), u.euler_scans.x(),
+                u.euler_scans.y(), u.euler_scans.z(), u.origin_probing.x(), u.origin_probing.y(),
+                u.origin_probing.z(), u.euler_probing.x(), u.euler_probing.y(), u.euler_probing.z(),
+                u.origin_noise.x(), u.origin_noise.y(), u.origin_noise.z(), u.euler_noise.x(),
+                u.euler_noise.y(), u.euler_noise.z(), u.scans, r.workpiece.rmse, r.workpiece.points,
+                r.workpiece.inliers, u.origin_probing_in_scans.x(), u.origin_probing_in_scans.y(),
+                u.origin_probing_in_scans.z(), u.euler_probing_in_scans.x(), u.euler_probing_in_scans.y(),
+                u.euler_probing_in_scans.z());
         }
         // Each trial's scans, so that two runs on the same seeds can be compared trial by trial.
-        std::printf("      scans: %d right, %d WRONG, %d rejected with a fiducial in view", sc.right, sc.wrong, sc.missed);
+        std::printf("      scans: %d right, %d WRONG, %d rejected with a fiducial in view", sc.right,
+                    sc.wrong, sc.missed);
         for (const auto& [k, n] : sc.missed_why) std::printf(" [%d %s]", n, k.c_str());
-        std::printf(", %d none in view, %d of %d traps registered\n", sc.none_in_view, sc.traps_wrong, sc.traps);
+        std::printf(", %d none in view, %d of %d traps registered\n", sc.none_in_view, sc.traps_wrong,
+                    sc.traps);
         // A shape close to a fiducial's mirror image: fiducial A's model mirrored.
         if (seed % 5 == 0) {
             sim::SimulatedJob mirrored = sj;
             mirrored.job.scans.resize(real_scans);
-            auto mesh = std::make_shared<open3d::geometry::TriangleMesh>(*mirrored.job.fiducials[0].model.mesh);
+            auto mesh =
+                std::make_shared<open3d::geometry::TriangleMesh>(*mirrored.job.fiducials[0].model.mesh);
             for (auto& v : mesh->vertices_) v.x() = -v.x();
             for (auto& tri : mesh->triangles_) std::swap(tri(1), tri(2));
             mirrored.job.fiducials[0].model.mesh = mesh;
             const JobResult m = run_job(mirrored.job, rs);
             Counts mc;
             count_scans(mirrored, m, real_scans, mc);
-            std::printf("      mirrored %s: %d right, %d WRONG, %d rejected\n", mirrored.job.fiducials[0].name.c_str(),
-                        mc.right, mc.wrong, mc.missed + mc.none_in_view);
+            std::printf("      mirrored %s: %d right, %d WRONG, %d rejected\n",
+                        mirrored.job.fiducials[0].name.c_str(), mc.right, mc.wrong,
+                        mc.missed + mc.none_in_view);
             c.right += mc.right;
             c.wrong += mc.wrong;
             c.missed += mc.missed;
@@ -219,27 +231,37 @@ int main(int argc, char** argv) {
         std::fflush(stdout);
     }
     const int scans = c.right + c.wrong + c.missed + c.none_in_view + c.traps;
-    std::printf("\n%d trials, %d scans (%d of them traps): %d registered right, %d registered WRONG, %d rejected with a "
-                "fiducial in view, %d rejected with none in view, traps registered: %d\n",
-                trials, scans, c.traps, c.right, c.wrong, c.missed, c.none_in_view, c.traps_wrong);
-    for (const auto& [k, n] : c.missed_why) std::printf("  rejected with a fiducial in view, %4d: %s\n", n, k.c_str());
-    std::printf("located %d of %d; origin error mean %.4f mm, worst %.4f mm; rotation mean %.4f deg, worst %.4f deg; "
-                "%.1f s per job\n",
-                located, trials, located ? sum_o / located : 0.0, worst_o, located ? sum_r / located : 0.0, worst_r,
-                trials ? seconds / trials : 0.0);
+    std::printf(
+        "\n%d trials, %d scans (%d of them traps): %d registered right, %d registered WRONG, %d rejected "
+        "with a "
+        "fiducial in view, %d rejected with none in view, traps registered: %d\n",
+        trials, scans, c.traps, c.right, c.wrong, c.missed, c.none_in_view, c.traps_wrong);
+    for (const auto& [k, n] : c.missed_why)
+        std::printf("  rejected with a fiducial in view, %4d: %s\n", n, k.c_str());
+    std::printf(
+        "located %d of %d; origin error mean %.4f mm, worst %.4f mm; rotation mean %.4f deg, worst %.4f deg; "
+        "%.1f s per job\n",
+        located, trials, located ? sum_o / located : 0.0, worst_o, located ? sum_r / located : 0.0, worst_r,
+        trials ? seconds / trials : 0.0);
     if (with_u)
-        std::printf("coverage of the 95%% intervals over %d trials: origin x %.1f%% y %.1f%% z %.1f%%, euler a %.1f%% "
-                    "b %.1f%% c %.1f%%\n",
-                    with_u, 100.0 * inside_o[0] / with_u, 100.0 * inside_o[1] / with_u, 100.0 * inside_o[2] / with_u,
-                    100.0 * inside_e[0] / with_u, 100.0 * inside_e[1] / with_u, 100.0 * inside_e[2] / with_u);
+        std::printf(
+            "coverage of the 95%% intervals over %d trials: origin x %.1f%% y %.1f%% z %.1f%%, euler a "
+            "%.1f%% "
+            "b %.1f%% c %.1f%%\n",
+            with_u, 100.0 * inside_o[0] / with_u, 100.0 * inside_o[1] / with_u, 100.0 * inside_o[2] / with_u,
+            100.0 * inside_e[0] / with_u, 100.0 * inside_e[1] / with_u, 100.0 * inside_e[2] / with_u);
     if (with_u) {
         auto rms = [&](const Eigen::Vector3d& v) { return (v / with_u).cwiseSqrt(); };
         const Eigen::Vector3d eo = rms(se_o), ee = rms(se_e), bo = rms(sb_o), be = rms(sb_e), uo = rms(su_o),
                               ue = rms(su_e);
-        std::printf("RMS error against the bound over %d trials (origin mm x y z | euler deg a b c):\n", with_u);
-        std::printf("  measured error          %.4f %.4f %.4f | %.4f %.4f %.4f\n", eo.x(), eo.y(), eo.z(), ee.x(), ee.y(), ee.z());
-        std::printf("  noise bound (1 sigma)   %.4f %.4f %.4f | %.4f %.4f %.4f\n", bo.x(), bo.y(), bo.z(), be.x(), be.y(), be.z());
-        std::printf("  reported sigma (u/1.96) %.4f %.4f %.4f | %.4f %.4f %.4f\n", uo.x(), uo.y(), uo.z(), ue.x(), ue.y(), ue.z());
+        std::printf("RMS error against the bound over %d trials (origin mm x y z | euler deg a b c):\n",
+                    with_u);
+        std::printf("  measured error          %.4f %.4f %.4f | %.4f %.4f %.4f\n", eo.x(), eo.y(), eo.z(),
+                    ee.x(), ee.y(), ee.z());
+        std::printf("  noise bound (1 sigma)   %.4f %.4f %.4f | %.4f %.4f %.4f\n", bo.x(), bo.y(), bo.z(),
+                    be.x(), be.y(), be.z());
+        std::printf("  reported sigma (u/1.96) %.4f %.4f %.4f | %.4f %.4f %.4f\n", uo.x(), uo.y(), uo.z(),
+                    ue.x(), ue.y(), ue.z());
     }
     return 0;
 }

@@ -7,8 +7,6 @@
 #include <embree3/rtcore.h>
 
 #include <Eigen/Dense>
-#include <nlohmann/json.hpp>
-
 #include <array>
 #include <cmath>
 #include <cstdint>
@@ -18,6 +16,7 @@
 #include <fstream>
 #include <iostream>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <random>
 #include <sstream>
 #include <string>
@@ -37,979 +36,1018 @@ double deg(double d) { return d * kPi / 180.0; }
 
 // ---------------------------------------------------------------- random numbers (deterministic per seed)
 struct Rng {
-  std::mt19937_64 g;
-  explicit Rng(uint64_t s) : g(s * 0x9E3779B97F4A7C15ull + 12345) {}
-  double uni(double a, double b) { return a + (b - a) * (double((g() >> 11)) / double(1ull << 53)); }
-  double gauss() {  // Box-Muller, own code so the stream is the same on every standard library
-    double u1 = uni(1e-12, 1.0), u2 = uni(0.0, 1.0);
-    return std::sqrt(-2.0 * std::log(u1)) * std::cos(2 * kPi * u2);
-  }
-  int integer(int a, int b) { return a + int(g() % uint64_t(b - a + 1)); }
-  bool chance(double p) { return uni(0, 1) < p; }
+    std::mt19937_64 g;
+    explicit Rng(uint64_t s) : g(s * 0x9E3779B97F4A7C15ull + 12345) {}
+    double uni(double a, double b) { return a + (b - a) * (double((g() >> 11)) / double(1ull << 53)); }
+    double gauss() {  // Box-Muller, own code so the stream is the same on every standard library
+        double u1 = uni(1e-12, 1.0), u2 = uni(0.0, 1.0);
+        return std::sqrt(-2.0 * std::log(u1)) * std::cos(2 * kPi * u2);
+    }
+    int integer(int a, int b) { return a + int(g() % uint64_t(b - a + 1)); }
+    bool chance(double p) { return uni(0, 1) < p; }
 };
 
 // ---------------------------------------------------------------- meshes
 struct Mesh {
-  std::vector<Vector3d> v;
-  std::vector<std::array<int, 3>> f;
-  void add(const Mesh& m, const Isometry3d& T = Isometry3d::Identity()) {
-    int o = int(v.size());
-    for (auto& p : m.v) v.push_back(T * p);
-    for (auto& t : m.f) f.push_back({t[0] + o, t[1] + o, t[2] + o});
-  }
-  Mesh transformed(const Isometry3d& T) const {
-    Mesh r;
-    r.add(*this, T);
-    return r;
-  }
-  Mesh mirrored_x() const {  // x -> -x, triangles flipped so they still face out
-    Mesh r = *this;
-    for (auto& p : r.v) p.x() = -p.x();
-    for (auto& t : r.f) std::swap(t[1], t[2]);
-    return r;
-  }
+    std::vector<Vector3d> v;
+    std::vector<std::array<int, 3>> f;
+    void add(const Mesh& m, const Isometry3d& T = Isometry3d::Identity()) {
+        int o = int(v.size());
+        for (auto& p : m.v) v.push_back(T * p);
+        for (auto& t : m.f) f.push_back({t[0] + o, t[1] + o, t[2] + o});
+    }
+    Mesh transformed(const Isometry3d& T) const {
+        Mesh r;
+        r.add(*this, T);
+        return r;
+    }
+    Mesh mirrored_x() const {  // x -> -x, triangles flipped so they still face out
+        Mesh r = *this;
+        for (auto& p : r.v) p.x() = -p.x();
+        for (auto& t : r.f) std::swap(t[1], t[2]);
+        return r;
+    }
 };
 
 // Hexahedron from 8 corners: b[0..3] bottom counter-clockwise seen from above, t[0..3] the top above them.
 Mesh hexa(const std::array<Vector3d, 4>& b, const std::array<Vector3d, 4>& t) {
-  Mesh m;
-  for (auto& p : b) m.v.push_back(p);
-  for (auto& p : t) m.v.push_back(p);
-  auto quad = [&](int a, int b_, int c, int d) {
-    m.f.push_back({a, b_, c});
-    m.f.push_back({a, c, d});
-  };
-  quad(0, 3, 2, 1);  // bottom, facing down
-  quad(4, 5, 6, 7);  // top
-  quad(0, 1, 5, 4);
-  quad(1, 2, 6, 5);
-  quad(2, 3, 7, 6);
-  quad(3, 0, 4, 7);
-  return m;
+    Mesh m;
+    for (auto& p : b) m.v.push_back(p);
+    for (auto& p : t) m.v.push_back(p);
+    auto quad = [&](int a, int b_, int c, int d) {
+        m.f.push_back({a, b_, c});
+        m.f.push_back({a, c, d});
+    };
+    quad(0, 3, 2, 1);  // bottom, facing down
+    quad(4, 5, 6, 7);  // top
+    quad(0, 1, 5, 4);
+    quad(1, 2, 6, 5);
+    quad(2, 3, 7, 6);
+    quad(3, 0, 4, 7);
+    return m;
 }
 Mesh box(Vector3d lo, Vector3d hi) {
-  return hexa({Vector3d(lo.x(), lo.y(), lo.z()), Vector3d(hi.x(), lo.y(), lo.z()), Vector3d(hi.x(), hi.y(), lo.z()),
-               Vector3d(lo.x(), hi.y(), lo.z())},
-              {Vector3d(lo.x(), lo.y(), hi.z()), Vector3d(hi.x(), lo.y(), hi.z()), Vector3d(hi.x(), hi.y(), hi.z()),
-               Vector3d(lo.x(), hi.y(), hi.z())});
+    return hexa({Vector3d(lo.x(), lo.y(), lo.z()), Vector3d(hi.x(), lo.y(), lo.z()),
+                 Vector3d(hi.x(), hi.y(), lo.z()), Vector3d(lo.x(), hi.y(), lo.z())},
+                {Vector3d(lo.x(), lo.y(), hi.z()), Vector3d(hi.x(), lo.y(), hi.z()),
+                 Vector3d(hi.x(), hi.y(), hi.z()), Vector3d(lo.x(), hi.y(), hi.z())});
 }
 // Frustum: bottom rectangle [x0,x1]x[y0,y1] at z0, top rectangle [u0,u1]x[v0,v1] at z1.
-Mesh frustum(double x0, double x1, double y0, double y1, double z0, double u0, double u1, double v0, double v1,
-             double z1) {
-  return hexa({Vector3d(x0, y0, z0), Vector3d(x1, y0, z0), Vector3d(x1, y1, z0), Vector3d(x0, y1, z0)},
-              {Vector3d(u0, v0, z1), Vector3d(u1, v0, z1), Vector3d(u1, v1, z1), Vector3d(u0, v1, z1)});
+Mesh frustum(double x0, double x1, double y0, double y1, double z0, double u0, double u1, double v0,
+             double v1, double z1) {
+    return hexa({Vector3d(x0, y0, z0), Vector3d(x1, y0, z0), Vector3d(x1, y1, z0), Vector3d(x0, y1, z0)},
+                {Vector3d(u0, v0, z1), Vector3d(u1, v0, z1), Vector3d(u1, v1, z1), Vector3d(u0, v1, z1)});
 }
 
 double cross2(Vector2d a, Vector2d b) { return a.x() * b.y() - a.y() * b.x(); }
 // Ear clipping of a simple counter-clockwise polygon.
 std::vector<std::array<int, 3>> triangulate(const std::vector<Vector2d>& p) {
-  std::vector<int> idx(p.size());
-  for (size_t i = 0; i < p.size(); ++i) idx[i] = int(i);
-  std::vector<std::array<int, 3>> out;
-  int guard = 0;
-  while (idx.size() > 3 && guard++ < 10000) {
-    bool cut = false;
-    for (size_t i = 0; i < idx.size(); ++i) {
-      int a = idx[(i + idx.size() - 1) % idx.size()], b = idx[i], c = idx[(i + 1) % idx.size()];
-      if (cross2(p[b] - p[a], p[c] - p[b]) <= 1e-12) continue;
-      bool inside = false;
-      for (int j : idx) {
-        if (j == a || j == b || j == c) continue;
-        if (cross2(p[b] - p[a], p[j] - p[a]) >= 0 && cross2(p[c] - p[b], p[j] - p[b]) >= 0 &&
-            cross2(p[a] - p[c], p[j] - p[c]) >= 0) {
-          inside = true;
-          break;
+    std::vector<int> idx(p.size());
+    for (size_t i = 0; i < p.size(); ++i) idx[i] = int(i);
+    std::vector<std::array<int, 3>> out;
+    int guard = 0;
+    while (idx.size() > 3 && guard++ < 10000) {
+        bool cut = false;
+        for (size_t i = 0; i < idx.size(); ++i) {
+            int a = idx[(i + idx.size() - 1) % idx.size()], b = idx[i], c = idx[(i + 1) % idx.size()];
+            if (cross2(p[b] - p[a], p[c] - p[b]) <= 1e-12) continue;
+            bool inside = false;
+            for (int j : idx) {
+                if (j == a || j == b || j == c) continue;
+                if (cross2(p[b] - p[a], p[j] - p[a]) >= 0 && cross2(p[c] - p[b], p[j] - p[b]) >= 0 &&
+                    cross2(p[a] - p[c], p[j] - p[c]) >= 0) {
+                    inside = true;
+                    break;
+                }
+            }
+            if (inside) continue;
+            out.push_back({a, b, c});
+            idx.erase(idx.begin() + long(i));
+            cut = true;
+            break;
         }
-      }
-      if (inside) continue;
-      out.push_back({a, b, c});
-      idx.erase(idx.begin() + long(i));
-      cut = true;
-      break;
+        if (!cut) break;
     }
-    if (!cut) break;
-  }
-  if (idx.size() == 3) out.push_back({idx[0], idx[1], idx[2]});
-  return out;
+    if (idx.size() == 3) out.push_back({idx[0], idx[1], idx[2]});
+    return out;
 }
 // Prism: a counter-clockwise polygon in xy extruded from z0 to z1.
 Mesh prism(const std::vector<Vector2d>& poly, double z0, double z1) {
-  Mesh m;
-  int n = int(poly.size());
-  for (auto& q : poly) m.v.push_back(Vector3d(q.x(), q.y(), z0));
-  for (auto& q : poly) m.v.push_back(Vector3d(q.x(), q.y(), z1));
-  for (auto& t : triangulate(poly)) {
-    m.f.push_back({t[0], t[2], t[1]});
-    m.f.push_back({t[0] + n, t[1] + n, t[2] + n});
-  }
-  for (int i = 0; i < n; ++i) {
-    int j = (i + 1) % n;
-    m.f.push_back({i, j, j + n});
-    m.f.push_back({i, j + n, i + n});
-  }
-  return m;
+    Mesh m;
+    int n = int(poly.size());
+    for (auto& q : poly) m.v.push_back(Vector3d(q.x(), q.y(), z0));
+    for (auto& q : poly) m.v.push_back(Vector3d(q.x(), q.y(), z1));
+    for (auto& t : triangulate(poly)) {
+        m.f.push_back({t[0], t[2], t[1]});
+        m.f.push_back({t[0] + n, t[1] + n, t[2] + n});
+    }
+    for (int i = 0; i < n; ++i) {
+        int j = (i + 1) % n;
+        m.f.push_back({i, j, j + n});
+        m.f.push_back({i, j + n, i + n});
+    }
+    return m;
 }
 Isometry3d pose(Vector3d t, double rx_deg, double ry_deg, double rz_deg) {
-  Isometry3d T = Isometry3d::Identity();
-  T.linear() = (Eigen::AngleAxisd(deg(rz_deg), Vector3d::UnitZ()) * Eigen::AngleAxisd(deg(ry_deg), Vector3d::UnitY()) *
-                Eigen::AngleAxisd(deg(rx_deg), Vector3d::UnitX()))
-                   .toRotationMatrix();
-  T.translation() = t;
-  return T;
+    Isometry3d T = Isometry3d::Identity();
+    T.linear() = (Eigen::AngleAxisd(deg(rz_deg), Vector3d::UnitZ()) *
+                  Eigen::AngleAxisd(deg(ry_deg), Vector3d::UnitY()) *
+                  Eigen::AngleAxisd(deg(rx_deg), Vector3d::UnitX()))
+                     .toRotationMatrix();
+    T.translation() = t;
+    return T;
 }
 
 // ---------------------------------------------------------------- fiducial families (frame: datum corner at
 // the origin, the block in +x +y +z, resting on z = 0). None has a mirror symmetry, so a mirrored copy is a
 // look-alike, not the same shape.
 Mesh fid_stepped(Rng& r, std::string& desc) {
-  double L = r.uni(45, 70), W = r.uni(35, 55), h1 = r.uni(12, 20);
-  double a = r.uni(14, 22), b = r.uni(14, W * 0.55), h2 = r.uni(h1 + 14, h1 + 26);
-  double c = r.uni(8, 12), h3 = r.uni(h1 + 5, h2 - 5);
-  Mesh m = box({0, 0, 0}, {L, W, h1});
-  m.add(box({0, 0, 0}, {a, b, h2}));     // overlapping bodies: internal faces
-  m.add(box({0, 0, 0}, {c, W, h3}));
-  desc = "stepped block (three overlapping boxes, internal faces)";
-  return m;
+    double L = r.uni(45, 70), W = r.uni(35, 55), h1 = r.uni(12, 20);
+    double a = r.uni(14, 22), b = r.uni(14, W * 0.55), h2 = r.uni(h1 + 14, h1 + 26);
+    double c = r.uni(8, 12), h3 = r.uni(h1 + 5, h2 - 5);
+    Mesh m = box({0, 0, 0}, {L, W, h1});
+    m.add(box({0, 0, 0}, {a, b, h2}));  // overlapping bodies: internal faces
+    m.add(box({0, 0, 0}, {c, W, h3}));
+    desc = "stepped block (three overlapping boxes, internal faces)";
+    return m;
 }
 Mesh fid_notched(Rng& r, std::string& desc) {
-  double L = r.uni(45, 65), W = r.uni(35, 50), H = r.uni(22, 35), ch = r.uni(7, 12);
-  double n0 = r.uni(12, 20), nw = r.uni(8, 14), nd = r.uni(7, 12);
-  // outline: a chamfer at (L, W), a notch in the y = 0 side
-  std::vector<Vector2d> poly = {{0, 0}, {n0, 0}, {n0, nd}, {n0 + nw, nd}, {n0 + nw, 0}, {L, 0}, {L, W - ch},
-                                {L - ch, W}, {0, W}};
-  Mesh m = prism(poly, 0, H);
-  // a ramp on top along the x = 0 side: breaks the mirror plane z = H/2 and makes the block chiral
-  double rl = r.uni(12, 18), rh = r.uni(6, 10);
-  std::vector<Vector2d> tri = {{0, 0}, {rl, 0}, {0, rh}};
-  Mesh ramp = prism(tri, 0, W * 0.6);  // in the ramp's frame: xy is the profile, z the length
-  Isometry3d T = Isometry3d::Identity();
-  T.linear() << 1, 0, 0, 0, 0, 1, 0, -1, 0;  // profile y -> z, length -> -y ... then shift
-  T.linear() = Matrix3d(Eigen::AngleAxisd(kPi / 2, Vector3d::UnitX()));
-  T.translation() = Vector3d(0, W * 0.6 + 2, H);
-  m.add(ramp, T);
-  desc = "notched and chamfered block with a ramp";
-  return m;
+    double L = r.uni(45, 65), W = r.uni(35, 50), H = r.uni(22, 35), ch = r.uni(7, 12);
+    double n0 = r.uni(12, 20), nw = r.uni(8, 14), nd = r.uni(7, 12);
+    // outline: a chamfer at (L, W), a notch in the y = 0 side
+    std::vector<Vector2d> poly = {{0, 0}, {n0, 0},     {n0, nd},    {n0 + nw, nd}, {n0 + nw, 0},
+                                  {L, 0}, {L, W - ch}, {L - ch, W}, {0, W}};
+    Mesh m = prism(poly, 0, H);
+    // a ramp on top along the x = 0 side: breaks the mirror plane z = H/2 and makes the block chiral
+    double rl = r.uni(12, 18), rh = r.uni(6, 10);
+    std::vector<Vector2d> tri = {{0, 0}, {rl, 0}, {0, rh}};
+    Mesh ramp = prism(tri, 0, W * 0.6);  // in the ramp's frame: xy is the profile, z the length
+    Isometry3d T = Isometry3d::Identity();
+    T.linear() << 1, 0, 0, 0, 0, 1, 0, -1, 0;  // profile y -> z, length -> -y ... then shift
+    T.linear() = Matrix3d(Eigen::AngleAxisd(kPi / 2, Vector3d::UnitX()));
+    T.translation() = Vector3d(0, W * 0.6 + 2, H);
+    m.add(ramp, T);
+    desc = "notched and chamfered block with a ramp";
+    return m;
 }
 Mesh fid_pyramid(Rng& r, std::string& desc) {
-  double L = r.uni(45, 65), W = r.uni(32, 45), hb = r.uni(8, 14), hp = r.uni(18, 28);
-  double tx = r.uni(8, 14), ty = r.uni(6, 10), ox = r.uni(0.15, 0.3) * L, oy = r.uni(0.15, 0.3) * W;
-  Mesh m = box({0, 0, 0}, {L, W, hb});
-  double u0 = ox + L * 0.2, v0 = oy + W * 0.2;
-  m.add(frustum(3, L - 3, 3, W - 3, hb, u0, u0 + tx, v0, v0 + ty, hb + hp));  // oblique, off-centre top
-  // a wedge on the +x end
-  double wl = r.uni(10, 16), wh = r.uni(hb + 4, hb + 10);
-  std::vector<Vector2d> prof = {{0, 0}, {wl, 0}, {0, wh}};
-  Isometry3d T = Isometry3d::Identity();
-  T.linear() = Matrix3d(Eigen::AngleAxisd(kPi / 2, Vector3d::UnitX()));
-  T.translation() = Vector3d(L, W * 0.45, 0);
-  m.add(prism(prof, 0, W * 0.45), T);
-  desc = "oblique pyramid on a plinth with a wedge";
-  return m;
+    double L = r.uni(45, 65), W = r.uni(32, 45), hb = r.uni(8, 14), hp = r.uni(18, 28);
+    double tx = r.uni(8, 14), ty = r.uni(6, 10), ox = r.uni(0.15, 0.3) * L, oy = r.uni(0.15, 0.3) * W;
+    Mesh m = box({0, 0, 0}, {L, W, hb});
+    double u0 = ox + L * 0.2, v0 = oy + W * 0.2;
+    m.add(frustum(3, L - 3, 3, W - 3, hb, u0, u0 + tx, v0, v0 + ty, hb + hp));  // oblique, off-centre top
+    // a wedge on the +x end
+    double wl = r.uni(10, 16), wh = r.uni(hb + 4, hb + 10);
+    std::vector<Vector2d> prof = {{0, 0}, {wl, 0}, {0, wh}};
+    Isometry3d T = Isometry3d::Identity();
+    T.linear() = Matrix3d(Eigen::AngleAxisd(kPi / 2, Vector3d::UnitX()));
+    T.translation() = Vector3d(L, W * 0.45, 0);
+    m.add(prism(prof, 0, W * 0.45), T);
+    desc = "oblique pyramid on a plinth with a wedge";
+    return m;
 }
 Mesh fid_multibody(Rng& r, std::string& desc) {
-  double L = r.uni(50, 70), W = r.uni(30, 45), h = r.uni(10, 16), t = r.uni(10, 15), H = r.uni(35, 50);
-  Mesh m = box({0, 0, 0}, {L, W, h});
-  Mesh up = box({0, 0, h}, {t, W, H});  // touches the base: coincident faces
-  m.add(up);
-  m.add(up);  // exported twice: duplicate faces
-  double g = r.uni(12, 20), gy = r.uni(4, W * 0.4), gw = r.uni(5, 8);
-  std::vector<Vector2d> prof = {{t, h}, {t + g, h}, {t, h + g}};  // gusset in xz
-  Isometry3d T = Isometry3d::Identity();
-  T.linear() = Matrix3d(Eigen::AngleAxisd(kPi / 2, Vector3d::UnitX()));
-  T.translation() = Vector3d(0, gy + gw, 0);
-  m.add(prism(prof, 0, gw), T);
-  double bx = r.uni(t + 20, L - 12), by = r.uni(W * 0.55, W - 9);
-  m.add(box({bx, by, h - 1}, {bx + 8, by + 8, h + r.uni(5, 9)}));  // a boss, sunk 1 mm into the base
-  desc = "multi-body L-bracket (coincident and duplicate faces, gusset, boss)";
-  return m;
+    double L = r.uni(50, 70), W = r.uni(30, 45), h = r.uni(10, 16), t = r.uni(10, 15), H = r.uni(35, 50);
+    Mesh m = box({0, 0, 0}, {L, W, h});
+    Mesh up = box({0, 0, h}, {t, W, H});  // touches the base: coincident faces
+    m.add(up);
+    m.add(up);  // exported twice: duplicate faces
+    double g = r.uni(12, 20), gy = r.uni(4, W * 0.4), gw = r.uni(5, 8);
+    std::vector<Vector2d> prof = {{t, h}, {t + g, h}, {t, h + g}};  // gusset in xz
+    Isometry3d T = Isometry3d::Identity();
+    T.linear() = Matrix3d(Eigen::AngleAxisd(kPi / 2, Vector3d::UnitX()));
+    T.translation() = Vector3d(0, gy + gw, 0);
+    m.add(prism(prof, 0, gw), T);
+    double bx = r.uni(t + 20, L - 12), by = r.uni(W * 0.55, W - 9);
+    m.add(box({bx, by, h - 1}, {bx + 8, by + 8, h + r.uni(5, 9)}));  // a boss, sunk 1 mm into the base
+    desc = "multi-body L-bracket (coincident and duplicate faces, gusset, boss)";
+    return m;
 }
 
 // ---------------------------------------------------------------- files
 void write_stl(const fs::path& p, const Mesh& m, double k) {
-  std::ofstream o(p, std::ios::binary);
-  char hdr[80] = {0};
-  std::snprintf(hdr, sizeof hdr, "partloc_world2");
-  o.write(hdr, 80);
-  uint32_t n = uint32_t(m.f.size());
-  o.write(reinterpret_cast<char*>(&n), 4);
-  for (auto& t : m.f) {
-    Vector3d a = m.v[t[0]] * k, b = m.v[t[1]] * k, c = m.v[t[2]] * k;
-    Vector3d nn = (b - a).cross(c - a);
-    if (nn.norm() > 0) nn.normalize();
-    float buf[12] = {float(nn.x()), float(nn.y()), float(nn.z()), float(a.x()), float(a.y()), float(a.z()),
-                     float(b.x()),  float(b.y()),  float(b.z()),  float(c.x()), float(c.y()), float(c.z())};
-    o.write(reinterpret_cast<char*>(buf), sizeof buf);
-    uint16_t attr = 0;
-    o.write(reinterpret_cast<char*>(&attr), 2);
-  }
+    std::ofstream o(p, std::ios::binary);
+    char hdr[80] = {0};
+    std::snprintf(hdr, sizeof hdr, "partloc_world2");
+    o.write(hdr, 80);
+    uint32_t n = uint32_t(m.f.size());
+    o.write(reinterpret_cast<char*>(&n), 4);
+    for (auto& t : m.f) {
+        Vector3d a = m.v[t[0]] * k, b = m.v[t[1]] * k, c = m.v[t[2]] * k;
+        Vector3d nn = (b - a).cross(c - a);
+        if (nn.norm() > 0) nn.normalize();
+        float buf[12] = {float(nn.x()), float(nn.y()), float(nn.z()), float(a.x()),
+                         float(a.y()),  float(a.z()),  float(b.x()),  float(b.y()),
+                         float(b.z()),  float(c.x()),  float(c.y()),  float(c.z())};
+        o.write(reinterpret_cast<char*>(buf), sizeof buf);
+        uint16_t attr = 0;
+        o.write(reinterpret_cast<char*>(&attr), 2);
+    }
 }
 void write_ply(const fs::path& p, const std::vector<Vector3d>& pts, double k) {
-  std::ofstream o(p, std::ios::binary);
-  o << "ply\nformat binary_little_endian 1.0\ncomment partloc_world2\nelement vertex " << pts.size()
-    << "\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
-  for (auto& q : pts) {
-    float b[3] = {float(q.x() * k), float(q.y() * k), float(q.z() * k)};
-    o.write(reinterpret_cast<char*>(b), sizeof b);
-  }
+    std::ofstream o(p, std::ios::binary);
+    o << "ply\nformat binary_little_endian 1.0\ncomment partloc_world2\nelement vertex " << pts.size()
+      << "\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
+    for (auto& q : pts) {
+        float b[3] = {float(q.x() * k), float(q.y() * k), float(q.z() * k)};
+        o.write(reinterpret_cast<char*>(b), sizeof b);
+    }
 }
 std::string num(double x) {
-  if (std::abs(x) < 1e-12) x = 0;
-  char b[64];
-  std::snprintf(b, sizeof b, "%.12g", x);
-  return b;
+    if (std::abs(x) < 1e-12) x = 0;
+    char b[64];
+    std::snprintf(b, sizeof b, "%.12g", x);
+    return b;
 }
 std::string matrix_yaml(const Isometry3d& T, double k) {
-  std::string s = "{matrix: [";
-  for (int i = 0; i < 4; ++i) {
-    s += "[";
-    for (int j = 0; j < 4; ++j) {
-      double x = T.matrix()(i, j);
-      if (j == 3 && i < 3) x *= k;
-      s += num(x) + (j < 3 ? ", " : "");
+    std::string s = "{matrix: [";
+    for (int i = 0; i < 4; ++i) {
+        s += "[";
+        for (int j = 0; j < 4; ++j) {
+            double x = T.matrix()(i, j);
+            if (j == 3 && i < 3) x *= k;
+            s += num(x) + (j < 3 ? ", " : "");
+        }
+        s += i < 3 ? "], " : "]";
     }
-    s += i < 3 ? "], " : "]";
-  }
-  return s + "]}";
+    return s + "]}";
 }
 json matrix_json(const Isometry3d& T, double k) {
-  json m = json::array();
-  for (int i = 0; i < 4; ++i) {
-    json row = json::array();
-    for (int j = 0; j < 4; ++j) row.push_back(T.matrix()(i, j) * ((j == 3 && i < 3) ? k : 1.0));
-    m.push_back(row);
-  }
-  return m;
+    json m = json::array();
+    for (int i = 0; i < 4; ++i) {
+        json row = json::array();
+        for (int j = 0; j < 4; ++j) row.push_back(T.matrix()(i, j) * ((j == 3 && i < 3) ? k : 1.0));
+        m.push_back(row);
+    }
+    return m;
 }
 
 // ---------------------------------------------------------------- the scene
 struct Body {
-  std::string name, kind;  // kind: fiducial, workpiece, clutter, pallet, lookalike
-  Mesh mesh;               // in the body's own frame
-  Isometry3d T = Isometry3d::Identity();  // machine <- body, axes at 0
-  int fiducial = -1;
+    std::string name, kind;                 // kind: fiducial, workpiece, clutter, pallet, lookalike
+    Mesh mesh;                              // in the body's own frame
+    Isometry3d T = Isometry3d::Identity();  // machine <- body, axes at 0
+    int fiducial = -1;
 };
 
 struct RayScene {
-  RTCDevice dev;
-  RTCScene sc;
-  std::vector<int> geom_body;                   // geomID -> body index
-  std::vector<std::vector<Vector3d>> normals;   // per geometry, per triangle (world)
-  RayScene(const std::vector<Body>& bodies, const std::vector<int>& use) {
-    dev = rtcNewDevice(nullptr);
-    sc = rtcNewScene(dev);
-    for (int bi : use) {
-      const Body& b = bodies[size_t(bi)];
-      Mesh w = b.mesh.transformed(b.T);
-      RTCGeometry g = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
-      float* vb = static_cast<float*>(
-          rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), w.v.size()));
-      for (size_t i = 0; i < w.v.size(); ++i)
-        for (int c = 0; c < 3; ++c) vb[3 * i + size_t(c)] = float(w.v[i][c]);
-      unsigned* ib = static_cast<unsigned*>(
-          rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(unsigned), w.f.size()));
-      std::vector<Vector3d> nn;
-      for (size_t i = 0; i < w.f.size(); ++i) {
-        for (int c = 0; c < 3; ++c) ib[3 * i + size_t(c)] = unsigned(w.f[i][size_t(c)]);
-        Vector3d n = (w.v[size_t(w.f[i][1])] - w.v[size_t(w.f[i][0])]).cross(w.v[size_t(w.f[i][2])] - w.v[size_t(w.f[i][0])]);
-        nn.push_back(n.norm() > 0 ? n.normalized() : Vector3d(0, 0, 1));
-      }
-      rtcCommitGeometry(g);
-      unsigned id = rtcAttachGeometry(sc, g);
-      rtcReleaseGeometry(g);
-      if (geom_body.size() <= id) geom_body.resize(id + 1, -1), normals.resize(id + 1);
-      geom_body[id] = bi;
-      normals[id] = nn;
+    RTCDevice dev;
+    RTCScene sc;
+    std::vector<int> geom_body;                  // geomID -> body index
+    std::vector<std::vector<Vector3d>> normals;  // per geometry, per triangle (world)
+    RayScene(const std::vector<Body>& bodies, const std::vector<int>& use) {
+        dev = rtcNewDevice(nullptr);
+        sc = rtcNewScene(dev);
+        for (int bi : use) {
+            const Body& b = bodies[size_t(bi)];
+            Mesh w = b.mesh.transformed(b.T);
+            RTCGeometry g = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
+            float* vb = static_cast<float*>(rtcSetNewGeometryBuffer(
+                g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), w.v.size()));
+            for (size_t i = 0; i < w.v.size(); ++i)
+                for (int c = 0; c < 3; ++c) vb[3 * i + size_t(c)] = float(w.v[i][c]);
+            unsigned* ib = static_cast<unsigned*>(rtcSetNewGeometryBuffer(
+                g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(unsigned), w.f.size()));
+            std::vector<Vector3d> nn;
+            for (size_t i = 0; i < w.f.size(); ++i) {
+                for (int c = 0; c < 3; ++c) ib[3 * i + size_t(c)] = unsigned(w.f[i][size_t(c)]);
+                Vector3d n = (w.v[size_t(w.f[i][1])] - w.v[size_t(w.f[i][0])])
+                                 .cross(w.v[size_t(w.f[i][2])] - w.v[size_t(w.f[i][0])]);
+                nn.push_back(n.norm() > 0 ? n.normalized() : Vector3d(0, 0, 1));
+            }
+            rtcCommitGeometry(g);
+            unsigned id = rtcAttachGeometry(sc, g);
+            rtcReleaseGeometry(g);
+            if (geom_body.size() <= id) geom_body.resize(id + 1, -1), normals.resize(id + 1);
+            geom_body[id] = bi;
+            normals[id] = nn;
+        }
+        rtcCommitScene(sc);
     }
-    rtcCommitScene(sc);
-  }
-  ~RayScene() {
-    rtcReleaseScene(sc);
-    rtcReleaseDevice(dev);
-  }
-  // first hit: distance, body, normal; false when nothing
-  bool cast(const Vector3d& o, const Vector3d& d, double& t, int& body, Vector3d& n) const {
-    RTCIntersectContext ctx;
-    rtcInitIntersectContext(&ctx);
-    RTCRayHit rh;
-    rh.ray.org_x = float(o.x()), rh.ray.org_y = float(o.y()), rh.ray.org_z = float(o.z());
-    rh.ray.dir_x = float(d.x()), rh.ray.dir_y = float(d.y()), rh.ray.dir_z = float(d.z());
-    rh.ray.tnear = 0, rh.ray.tfar = 1e30f, rh.ray.mask = unsigned(-1), rh.ray.flags = 0, rh.ray.time = 0;
-    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-    rtcIntersect1(sc, &ctx, &rh);
-    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
-    t = rh.ray.tfar;
-    body = geom_body[rh.hit.geomID];
-    n = normals[rh.hit.geomID][rh.hit.primID];
-    return true;
-  }
-  bool occluded(const Vector3d& o, const Vector3d& d, double tfar) const {
-    RTCIntersectContext ctx;
-    rtcInitIntersectContext(&ctx);
-    RTCRay r;
-    r.org_x = float(o.x()), r.org_y = float(o.y()), r.org_z = float(o.z());
-    r.dir_x = float(d.x()), r.dir_y = float(d.y()), r.dir_z = float(d.z());
-    r.tnear = 0.02f, r.tfar = float(tfar), r.mask = unsigned(-1), r.flags = 0, r.time = 0;
-    rtcOccluded1(sc, &ctx, &r);
-    return r.tfar < 0;
-  }
+    ~RayScene() {
+        rtcReleaseScene(sc);
+        rtcReleaseDevice(dev);
+    }
+    // first hit: distance, body, normal; false when nothing
+    bool cast(const Vector3d& o, const Vector3d& d, double& t, int& body, Vector3d& n) const {
+        RTCIntersectContext ctx;
+        rtcInitIntersectContext(&ctx);
+        RTCRayHit rh;
+        rh.ray.org_x = float(o.x()), rh.ray.org_y = float(o.y()), rh.ray.org_z = float(o.z());
+        rh.ray.dir_x = float(d.x()), rh.ray.dir_y = float(d.y()), rh.ray.dir_z = float(d.z());
+        rh.ray.tnear = 0, rh.ray.tfar = 1e30f, rh.ray.mask = unsigned(-1), rh.ray.flags = 0, rh.ray.time = 0;
+        rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+        rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+        rtcIntersect1(sc, &ctx, &rh);
+        if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+        t = rh.ray.tfar;
+        body = geom_body[rh.hit.geomID];
+        n = normals[rh.hit.geomID][rh.hit.primID];
+        return true;
+    }
+    bool occluded(const Vector3d& o, const Vector3d& d, double tfar) const {
+        RTCIntersectContext ctx;
+        rtcInitIntersectContext(&ctx);
+        RTCRay r;
+        r.org_x = float(o.x()), r.org_y = float(o.y()), r.org_z = float(o.z());
+        r.dir_x = float(d.x()), r.dir_y = float(d.y()), r.dir_z = float(d.z());
+        r.tnear = 0.02f, r.tfar = float(tfar), r.mask = unsigned(-1), r.flags = 0, r.time = 0;
+        rtcOccluded1(sc, &ctx, &r);
+        return r.tfar < 0;
+    }
 };
 
 struct Sensor {  // one scan's scanner
-  int W = 640, H = 480;
-  double f = 1000;              // focal length, pixels
-  double baseline = 120;        // camera to projector, mm, along the camera's x
-  double noise = 0.1;           // 1-sigma along the ray, mm, at normal incidence
-  double bias = 0.0;            // systematic offset along the ray, mm (positive: surfaces seen too far)
-  double smooth = 0.0;          // 0..1: weight of the 3x3 neighbourhood mean
-  int edge_px = 1;              // dropout within this many pixels of a depth jump
-  double edge_p = 0.7;          // probability of dropping such a pixel
-  double scale = 0.0;           // relative scale error about the point work_distance along the optical axis
-  double outliers = 0.0;        // fraction of points thrown off the surface
-  double max_incidence = 78;    // degrees
-  double work_distance = 400;   // the scale error is about the point this far along the optical axis
-                                // (the centre of the calibrated volume); the scan frame is the camera's
+    int W = 640, H = 480;
+    double f = 1000;             // focal length, pixels
+    double baseline = 120;       // camera to projector, mm, along the camera's x
+    double noise = 0.1;          // 1-sigma along the ray, mm, at normal incidence
+    double bias = 0.0;           // systematic offset along the ray, mm (positive: surfaces seen too far)
+    double smooth = 0.0;         // 0..1: weight of the 3x3 neighbourhood mean
+    int edge_px = 1;             // dropout within this many pixels of a depth jump
+    double edge_p = 0.7;         // probability of dropping such a pixel
+    double scale = 0.0;          // relative scale error about the point work_distance along the optical axis
+    double outliers = 0.0;       // fraction of points thrown off the surface
+    double max_incidence = 78;   // degrees
+    double work_distance = 400;  // the scale error is about the point this far along the optical axis
+                                 // (the centre of the calibrated volume); the scan frame is the camera's
 };
 
 struct ScanOut {
-  std::vector<Vector3d> pts;  // scan frame, mm
-  std::vector<int> body;      // per point: body index, -1 for an outlier
-  Isometry3d T_machine_scan;
-  Isometry3d T_machine_cam;
-  int shadowed = 0;           // camera hits the projector does not see
+    std::vector<Vector3d> pts;  // scan frame, mm
+    std::vector<int> body;      // per point: body index, -1 for an outlier
+    Isometry3d T_machine_scan;
+    Isometry3d T_machine_cam;
+    int shadowed = 0;  // camera hits the projector does not see
 };
 
 Isometry3d look_at(const Vector3d& eye, const Vector3d& target, Rng& r) {
-  Vector3d z = (target - eye).normalized();
-  Vector3d up = std::abs(z.z()) > 0.95 ? Vector3d(1, 0, 0) : Vector3d(0, 0, 1);
-  Vector3d x = z.cross(up).normalized();
-  // roll the camera about its axis by a random angle
-  double roll = r.uni(-kPi, kPi);
-  x = Eigen::AngleAxisd(roll, z) * x;
-  Vector3d y = z.cross(x);
-  Isometry3d T = Isometry3d::Identity();
-  T.linear().col(0) = x, T.linear().col(1) = y, T.linear().col(2) = z;
-  T.translation() = eye;
-  return T;
+    Vector3d z = (target - eye).normalized();
+    Vector3d up = std::abs(z.z()) > 0.95 ? Vector3d(1, 0, 0) : Vector3d(0, 0, 1);
+    Vector3d x = z.cross(up).normalized();
+    // roll the camera about its axis by a random angle
+    double roll = r.uni(-kPi, kPi);
+    x = Eigen::AngleAxisd(roll, z) * x;
+    Vector3d y = z.cross(x);
+    Isometry3d T = Isometry3d::Identity();
+    T.linear().col(0) = x, T.linear().col(1) = y, T.linear().col(2) = z;
+    T.translation() = eye;
+    return T;
 }
 
 ScanOut render(const RayScene& rs, const Isometry3d& T_cam, const Sensor& s, Rng& r) {
-  ScanOut out;
-  out.T_machine_cam = T_cam;
-  const Vector3d C = T_cam.translation();
-  const Matrix3d R = T_cam.linear();
-  const Vector3d P = C + R * Vector3d(s.baseline, 0.08 * s.baseline, 0);  // projector
-  const int n = s.W * s.H;
-  std::vector<double> depth(size_t(n), -1.0), inc(size_t(n), 0.0);
-  std::vector<int> body(size_t(n), -1);
-  std::vector<Vector3d> dirs(static_cast<size_t>(n));
-  for (int v = 0; v < s.H; ++v)
-    for (int u = 0; u < s.W; ++u) {
-      size_t i = size_t(v * s.W + u);
-      Vector3d d = R * Vector3d((u + 0.5 - s.W / 2.0) / s.f, (v + 0.5 - s.H / 2.0) / s.f, 1.0).normalized();
-      dirs[i] = d;
-      double t;
-      int b;
-      Vector3d nn;
-      if (!rs.cast(C, d, t, b, nn)) continue;
-      Vector3d X = C + t * d;
-      double cosc = std::abs(nn.dot(d));
-      if (cosc < std::cos(deg(s.max_incidence))) continue;
-      Vector3d toP = P - X;
-      double dp = toP.norm();
-      toP /= dp;
-      // both rays on the same side of the face, and nothing between the point and the projector
-      if ((nn.dot(-d) > 0) != (nn.dot(toP) > 0) || std::abs(nn.dot(toP)) < 0.1 ||
-          rs.occluded(X, toP, dp - 0.05)) {
-        ++out.shadowed;
-        continue;
-      }
-      depth[i] = t;
-      inc[i] = cosc;
-      body[i] = b;
-    }
-  // noise and bias along the ray
-  std::vector<double> meas(size_t(n), -1.0);
-  for (int i = 0; i < n; ++i)
-    if (depth[size_t(i)] > 0) {
-      double sig = s.noise * (1.0 + 0.6 * (1.0 - inc[size_t(i)]));
-      meas[size_t(i)] = depth[size_t(i)] + s.bias + sig * r.gauss();
-    }
-  // smoothing: a 3x3 mean over neighbours on the same surface patch (within 1 mm)
-  std::vector<double> sm = meas;
-  if (s.smooth > 0)
-    for (int v = 1; v < s.H - 1; ++v)
-      for (int u = 1; u < s.W - 1; ++u) {
-        size_t i = size_t(v * s.W + u);
-        if (meas[i] < 0) continue;
-        double sum = 0;
-        int c = 0;
-        for (int dv = -1; dv <= 1; ++dv)
-          for (int du = -1; du <= 1; ++du) {
-            double m = meas[size_t((v + dv) * s.W + u + du)];
-            if (m > 0 && std::abs(m - meas[i]) < 1.0) sum += m, ++c;
-          }
-        sm[i] = (1 - s.smooth) * meas[i] + s.smooth * sum / c;
-      }
-  // edge dropout: near a depth jump or a hole
-  std::vector<char> keep(size_t(n), 0);
-  for (int v = 0; v < s.H; ++v)
-    for (int u = 0; u < s.W; ++u) {
-      size_t i = size_t(v * s.W + u);
-      if (sm[i] < 0) continue;
-      keep[i] = 1;
-      bool edge = false;
-      for (int dv = -s.edge_px; dv <= s.edge_px && !edge; ++dv)
-        for (int du = -s.edge_px; du <= s.edge_px && !edge; ++du) {
-          int uu = u + du, vv = v + dv;
-          if (uu < 0 || vv < 0 || uu >= s.W || vv >= s.H) continue;
-          double o = depth[size_t(vv * s.W + uu)];
-          if (o < 0 || std::abs(o - depth[i]) > 2.0) edge = true;
+    ScanOut out;
+    out.T_machine_cam = T_cam;
+    const Vector3d C = T_cam.translation();
+    const Matrix3d R = T_cam.linear();
+    const Vector3d P = C + R * Vector3d(s.baseline, 0.08 * s.baseline, 0);  // projector
+    const int n = s.W * s.H;
+    std::vector<double> depth(size_t(n), -1.0), inc(size_t(n), 0.0);
+    std::vector<int> body(size_t(n), -1);
+    std::vector<Vector3d> dirs(static_cast<size_t>(n));
+    for (int v = 0; v < s.H; ++v)
+        for (int u = 0; u < s.W; ++u) {
+            size_t i = size_t(v * s.W + u);
+            Vector3d d =
+                R * Vector3d((u + 0.5 - s.W / 2.0) / s.f, (v + 0.5 - s.H / 2.0) / s.f, 1.0).normalized();
+            dirs[i] = d;
+            double t;
+            int b;
+            Vector3d nn;
+            if (!rs.cast(C, d, t, b, nn)) continue;
+            Vector3d X = C + t * d;
+            double cosc = std::abs(nn.dot(d));
+            if (cosc < std::cos(deg(s.max_incidence))) continue;
+            Vector3d toP = P - X;
+            double dp = toP.norm();
+            toP /= dp;
+            // both rays on the same side of the face, and nothing between the point and the projector
+            if ((nn.dot(-d) > 0) != (nn.dot(toP) > 0) || std::abs(nn.dot(toP)) < 0.1 ||
+                rs.occluded(X, toP, dp - 0.05)) {
+                ++out.shadowed;
+                continue;
+            }
+            depth[i] = t;
+            inc[i] = cosc;
+            body[i] = b;
         }
-      if (edge && r.chance(s.edge_p)) keep[i] = 0;
+    // noise and bias along the ray
+    std::vector<double> meas(size_t(n), -1.0);
+    for (int i = 0; i < n; ++i)
+        if (depth[size_t(i)] > 0) {
+            double sig = s.noise * (1.0 + 0.6 * (1.0 - inc[size_t(i)]));
+            meas[size_t(i)] = depth[size_t(i)] + s.bias + sig * r.gauss();
+        }
+    // smoothing: a 3x3 mean over neighbours on the same surface patch (within 1 mm)
+    std::vector<double> sm = meas;
+    if (s.smooth > 0)
+        for (int v = 1; v < s.H - 1; ++v)
+            for (int u = 1; u < s.W - 1; ++u) {
+                size_t i = size_t(v * s.W + u);
+                if (meas[i] < 0) continue;
+                double sum = 0;
+                int c = 0;
+                for (int dv = -1; dv <= 1; ++dv)
+                    for (int du = -1; du <= 1; ++du) {
+                        double m = meas[size_t((v + dv) * s.W + u + du)];
+                        if (m > 0 && std::abs(m - meas[i]) < 1.0) sum += m, ++c;
+                    }
+                sm[i] = (1 - s.smooth) * meas[i] + s.smooth * sum / c;
+            }
+    // edge dropout: near a depth jump or a hole
+    std::vector<char> keep(size_t(n), 0);
+    for (int v = 0; v < s.H; ++v)
+        for (int u = 0; u < s.W; ++u) {
+            size_t i = size_t(v * s.W + u);
+            if (sm[i] < 0) continue;
+            keep[i] = 1;
+            bool edge = false;
+            for (int dv = -s.edge_px; dv <= s.edge_px && !edge; ++dv)
+                for (int du = -s.edge_px; du <= s.edge_px && !edge; ++du) {
+                    int uu = u + du, vv = v + dv;
+                    if (uu < 0 || vv < 0 || uu >= s.W || vv >= s.H) continue;
+                    double o = depth[size_t(vv * s.W + uu)];
+                    if (o < 0 || std::abs(o - depth[i]) > 2.0) edge = true;
+                }
+            if (edge && r.chance(s.edge_p)) keep[i] = 0;
+        }
+    // the scan frame is the camera frame: origin at the optical centre, z along the view, x towards the
+    // projector
+    const Vector3d centre_cam(0, 0, s.work_distance);
+    out.T_machine_scan = T_cam;
+    for (int i = 0; i < n; ++i) {
+        if (!keep[size_t(i)]) continue;
+        double t = sm[size_t(i)];
+        int b = body[size_t(i)];
+        if (r.chance(s.outliers)) {
+            t += r.chance(0.5) ? r.gauss() * 4.0 : r.uni(-30, 30);
+            b = -1;
+        }
+        Vector3d pc = R.transpose() * (t * dirs[size_t(i)]);
+        out.pts.push_back(centre_cam + (1.0 + s.scale) * (pc - centre_cam));
+        out.body.push_back(b);
     }
-  // the scan frame is the camera frame: origin at the optical centre, z along the view, x towards the projector
-  const Vector3d centre_cam(0, 0, s.work_distance);
-  out.T_machine_scan = T_cam;
-  for (int i = 0; i < n; ++i) {
-    if (!keep[size_t(i)]) continue;
-    double t = sm[size_t(i)];
-    int b = body[size_t(i)];
-    if (r.chance(s.outliers)) {
-      t += r.chance(0.5) ? r.gauss() * 4.0 : r.uni(-30, 30);
-      b = -1;
-    }
-    Vector3d pc = R.transpose() * (t * dirs[size_t(i)]);
-    out.pts.push_back(centre_cam + (1.0 + s.scale) * (pc - centre_cam));
-    out.body.push_back(b);
-  }
-  return out;
+    return out;
 }
 
 // point to triangle distance (for the self-test)
 double tri_dist(const Vector3d& p, const Vector3d& a, const Vector3d& b, const Vector3d& c) {
-  Vector3d ab = b - a, ac = c - a, ap = p - a;
-  double d1 = ab.dot(ap), d2 = ac.dot(ap);
-  if (d1 <= 0 && d2 <= 0) return (p - a).norm();
-  Vector3d bp = p - b;
-  double d3 = ab.dot(bp), d4 = ac.dot(bp);
-  if (d3 >= 0 && d4 <= d3) return (p - b).norm();
-  double vc = d1 * d4 - d3 * d2;
-  if (vc <= 0 && d1 >= 0 && d3 <= 0) return (p - (a + ab * (d1 / (d1 - d3)))).norm();
-  Vector3d cp = p - c;
-  double d5 = ab.dot(cp), d6 = ac.dot(cp);
-  if (d6 >= 0 && d5 <= d6) return (p - c).norm();
-  double vb = d5 * d2 - d1 * d6;
-  if (vb <= 0 && d2 >= 0 && d6 <= 0) return (p - (a + ac * (d2 / (d2 - d6)))).norm();
-  double va = d3 * d6 - d5 * d4;
-  if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0)
-    return (p - (b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6))))).norm();
-  double den = 1.0 / (va + vb + vc);
-  return (p - (a + ab * (vb * den) + ac * (vc * den))).norm();
+    Vector3d ab = b - a, ac = c - a, ap = p - a;
+    double d1 = ab.dot(ap), d2 = ac.dot(ap);
+    if (d1 <= 0 && d2 <= 0) return (p - a).norm();
+    Vector3d bp = p - b;
+    double d3 = ab.dot(bp), d4 = ac.dot(bp);
+    if (d3 >= 0 && d4 <= d3) return (p - b).norm();
+    double vc = d1 * d4 - d3 * d2;
+    if (vc <= 0 && d1 >= 0 && d3 <= 0) return (p - (a + ab * (d1 / (d1 - d3)))).norm();
+    Vector3d cp = p - c;
+    double d5 = ab.dot(cp), d6 = ac.dot(cp);
+    if (d6 >= 0 && d5 <= d6) return (p - c).norm();
+    double vb = d5 * d2 - d1 * d6;
+    if (vb <= 0 && d2 >= 0 && d6 <= 0) return (p - (a + ac * (d2 / (d2 - d6)))).norm();
+    double va = d3 * d6 - d5 * d4;
+    if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0)
+        return (p - (b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6))))).norm();
+    double den = 1.0 / (va + vb + vc);
+    return (p - (a + ab * (vb * den) + ac * (vc * den))).norm();
 }
 double mesh_dist(const Vector3d& p, const Mesh& m) {
-  double best = 1e30;
-  for (auto& t : m.f) best = std::min(best, tri_dist(p, m.v[size_t(t[0])], m.v[size_t(t[1])], m.v[size_t(t[2])]));
-  return best;
+    double best = 1e30;
+    for (auto& t : m.f)
+        best = std::min(best, tri_dist(p, m.v[size_t(t[0])], m.v[size_t(t[1])], m.v[size_t(t[2])]));
+    return best;
 }
 
 // ---------------------------------------------------------------- the cell
 struct Scan {
-  ScanOut out;
-  Sensor sensor;
-  std::string trap;  // "", "no_fiducial", "plane", "mirror"
-  double A = 0;      // rotary axis value, degrees
-  std::vector<int> fid_counts;
+    ScanOut out;
+    Sensor sensor;
+    std::string trap;  // "", "no_fiducial", "plane", "mirror"
+    double A = 0;      // rotary axis value, degrees
+    std::vector<int> fid_counts;
 };
 struct Cell {
-  std::vector<Body> bodies;
-  std::vector<Scan> scans;
-  std::vector<std::string> fid_desc;
-  Isometry3d T_nominal_wp, T_true_wp;
-  Mesh wp_nominal;                       // workpiece frame
-  std::vector<Mesh> wp_datums;           // workpiece frame: the three finished faces
-  bool rotary = false, scanner_block = true, use_datums = false;
-  double spacing = 0.4, noise = 0.1;
-  std::string layout;
+    std::vector<Body> bodies;
+    std::vector<Scan> scans;
+    std::vector<std::string> fid_desc;
+    Isometry3d T_nominal_wp, T_true_wp;
+    Mesh wp_nominal;              // workpiece frame
+    std::vector<Mesh> wp_datums;  // workpiece frame: the three finished faces
+    bool rotary = false, scanner_block = true, use_datums = false;
+    double spacing = 0.4, noise = 0.1;
+    std::string layout;
 };
 
 Isometry3d rot_A(double a_deg) {  // rotary axis A about machine X through the origin
-  Isometry3d M = Isometry3d::Identity();
-  M.linear() = Matrix3d(Eigen::AngleAxisd(deg(a_deg), Vector3d::UnitX()));
-  return M;
+    Isometry3d M = Isometry3d::Identity();
+    M.linear() = Matrix3d(Eigen::AngleAxisd(deg(a_deg), Vector3d::UnitX()));
+    return M;
 }
 
 Mesh rect(Vector3d o, Vector3d e1, Vector3d e2) {  // a rectangle facing e1 x e2
-  Mesh m;
-  m.v = {o, o + e1, o + e1 + e2, o + e2};
-  m.f = {{0, 1, 2}, {0, 2, 3}};
-  return m;
+    Mesh m;
+    m.v = {o, o + e1, o + e1 + e2, o + e2};
+    m.f = {{0, 1, 2}, {0, 2, 3}};
+    return m;
 }
 
-bool g_ideal = false;  // --ideal: a perfect sensor (no noise, bias, smoothing, dropout, scale error, outliers)
+bool g_ideal =
+    false;  // --ideal: a perfect sensor (no noise, bias, smoothing, dropout, scale error, outliers)
 
 Cell build_cell(uint64_t seed, bool small) {
-  Rng r(seed);
-  Cell c;
-  c.rotary = r.chance(0.3);
-  c.scanner_block = r.chance(0.7);
-  c.use_datums = r.chance(0.5);
-  // pallet: top at z = 0
-  c.bodies.push_back({"pallet", "pallet", box({-260, -200, -25}, {260, 200, 0}), Isometry3d::Identity(), -1});
-  // workpiece: nominal part = a block with a boss; the datum corner faces (x = 0, y = 0 walls and the top)
-  // are finished, the rest carries 0.3-1.0 mm of extra stock
-  double Lx = r.uni(80, 130), Ly = r.uni(50, 80), Lz = r.uni(30, 50);
-  double bx0 = r.uni(0.45, 0.6) * Lx, bx1 = bx0 + r.uni(15, 0.35 * Lx), by0 = r.uni(0.2, 0.4) * Ly,
-         by1 = by0 + r.uni(12, 0.4 * Ly), bh = r.uni(8, 15);
-  c.wp_nominal = box({0, 0, 0}, {Lx, Ly, Lz});
-  c.wp_nominal.add(box({bx0, by0, Lz}, {bx1, by1, Lz + bh}));
-  double sx = r.uni(0.3, 1.0), sy = r.uni(0.3, 1.0), sb = r.uni(0.3, 1.0);
-  Mesh stock = box({0, 0, 0}, {Lx + sx, Ly + sy, Lz});
-  stock.add(box({bx0 - sb, by0 - sb, Lz - 1}, {bx1 + sb, by1 + sb, Lz + bh + sb}));
-  c.wp_datums = {rect({0, 0, Lz}, {Lx, 0, 0}, {0, Ly, 0}),   // top (primary)
-                 rect({0, 0, 0}, {0, 0, Lz}, {0, Ly, 0}),    // x = 0 wall, facing -x
-                 rect({0, 0, 0}, {Lx, 0, 0}, {0, 0, Lz})};   // y = 0 wall, facing -y
-  bool vise = r.chance(0.5);
-  double zbase = vise ? r.uni(40, 60) : 0.0;
-  double yaw = r.uni(-180, 180);
-  c.T_nominal_wp = pose(Vector3d(r.uni(-20, 20) - Lx / 2, r.uni(-15, 15) - Ly / 2, zbase), 0, 0, 0) ;
-  // yaw about the part's centre
-  {
-    Isometry3d Tc = pose(Vector3d(Lx / 2, Ly / 2, 0), 0, 0, 0);
-    c.T_nominal_wp = pose(c.T_nominal_wp.translation() + Vector3d(Lx / 2, Ly / 2, 0), 0, 0, yaw) * Tc.inverse();
-  }
-  Isometry3d dT = pose(Vector3d(r.uni(-2, 2), r.uni(-2, 2), r.uni(-0.5, 0.5)), r.uni(-0.4, 0.4), r.uni(-0.4, 0.4),
-                       r.uni(-2, 2));
-  c.T_true_wp = c.T_nominal_wp * dT;
-  c.bodies.push_back({"workpiece", "workpiece", stock, c.T_true_wp, -1});
-  if (vise) {
-    c.layout = "vise";
-    double jt = r.uni(18, 25), jh = r.uni(0.35, 0.6) * Lz, ext = r.uni(15, 30);
-    Mesh v = box({-ext, -jt - 40, -zbase}, {Lx + ext, Ly + sy + jt + 40, -10});  // vise body below the part
-    v.add(box({-ext * 0.5, -jt, -10}, {Lx + ext * 0.5, 0, jh}));               // fixed jaw
-    v.add(box({-ext * 0.5, Ly + sy, -10}, {Lx + ext * 0.5, Ly + sy + jt, jh}));  // moving jaw
-    v.add(box({Lx * 0.1, -5, -10}, {Lx * 0.9, Ly + sy + 5, 0}));               // parallels
-    c.bodies.push_back({"vise", "clutter", v, c.T_true_wp, -1});
-  } else {
-    c.layout = "clamps";
-    for (int k = 0; k < 2; ++k) {  // strap clamps on the x = Lx end and the y = Ly side
-      Mesh m = box({0, 0, 0}, {60, 18, 12});
-      m.add(box({38, 2, -Lz}, {52, 16, 0}));  // heel block down to the pallet
-      m.add(box({22, 5, 12}, {34, 13, 28}));  // stud and nut
-      Isometry3d T = k == 0 ? pose(Vector3d(Lx - 15, Ly * 0.3, Lz), 0, 0, 0)
-                            : pose(Vector3d(Lx * 0.3, Ly - 15, Lz), 0, 0, 90);
-      c.bodies.push_back({"clamp" + std::to_string(k), "clutter", m, c.T_true_wp * T, -1});
+    Rng r(seed);
+    Cell c;
+    c.rotary = r.chance(0.3);
+    c.scanner_block = r.chance(0.7);
+    c.use_datums = r.chance(0.5);
+    // pallet: top at z = 0
+    c.bodies.push_back(
+        {"pallet", "pallet", box({-260, -200, -25}, {260, 200, 0}), Isometry3d::Identity(), -1});
+    // workpiece: nominal part = a block with a boss; the datum corner faces (x = 0, y = 0 walls and the top)
+    // are finished, the rest carries 0.3-1.0 mm of extra stock
+    double Lx = r.uni(80, 130), Ly = r.uni(50, 80), Lz = r.uni(30, 50);
+    double bx0 = r.uni(0.45, 0.6) * Lx, bx1 = bx0 + r.uni(15, 0.35 * Lx), by0 = r.uni(0.2, 0.4) * Ly,
+           by1 = by0 + r.uni(12, 0.4 * Ly), bh = r.uni(8, 15);
+    c.wp_nominal = box({0, 0, 0}, {Lx, Ly, Lz});
+    c.wp_nominal.add(box({bx0, by0, Lz}, {bx1, by1, Lz + bh}));
+    double sx = r.uni(0.3, 1.0), sy = r.uni(0.3, 1.0), sb = r.uni(0.3, 1.0);
+    Mesh stock = box({0, 0, 0}, {Lx + sx, Ly + sy, Lz});
+    stock.add(box({bx0 - sb, by0 - sb, Lz - 1}, {bx1 + sb, by1 + sb, Lz + bh + sb}));
+    c.wp_datums = {rect({0, 0, Lz}, {Lx, 0, 0}, {0, Ly, 0}),  // top (primary)
+                   rect({0, 0, 0}, {0, 0, Lz}, {0, Ly, 0}),   // x = 0 wall, facing -x
+                   rect({0, 0, 0}, {Lx, 0, 0}, {0, 0, Lz})};  // y = 0 wall, facing -y
+    bool vise = r.chance(0.5);
+    double zbase = vise ? r.uni(40, 60) : 0.0;
+    double yaw = r.uni(-180, 180);
+    c.T_nominal_wp = pose(Vector3d(r.uni(-20, 20) - Lx / 2, r.uni(-15, 15) - Ly / 2, zbase), 0, 0, 0);
+    // yaw about the part's centre
+    {
+        Isometry3d Tc = pose(Vector3d(Lx / 2, Ly / 2, 0), 0, 0, 0);
+        c.T_nominal_wp =
+            pose(c.T_nominal_wp.translation() + Vector3d(Lx / 2, Ly / 2, 0), 0, 0, yaw) * Tc.inverse();
     }
-  }
-  // fiducials around the part, in sectors; the other sectors get a second part, a fixture, a look-alike
-  int nf = r.integer(2, 3);
-  std::vector<int> fam = {0, 1, 2, 3};
-  std::shuffle(fam.begin(), fam.end(), r.g);
-  int nsect = 6;
-  std::vector<int> sect = {0, 1, 2, 3, 4, 5};
-  std::shuffle(sect.begin(), sect.end(), r.g);
-  // fiducial A stands off the part's datum corner (where its finished x = 0 and y = 0 walls face), as a
-  // machinist sets a cell up so that one scan sees the datum faces and a fiducial together
-  double corner_az = yaw + 225.0;
-  double a0 = corner_az - 360.0 / nsect * sect[0];
-  Vector3d centre = c.T_nominal_wp * Vector3d(Lx / 2, Ly / 2, 0);
-  centre.z() = 0;
-  auto place = [&](int s, double rad) {
-    double a = deg(a0 + 360.0 / nsect * s + r.uni(-12, 12));
-    return Vector3d(centre.x() + rad * std::cos(a), centre.y() + rad * std::sin(a), 0);
-  };
-  for (int k = 0; k < nf; ++k) {
-    std::string d;
-    Mesh m = fam[size_t(k)] == 0 ? fid_stepped(r, d) : fam[size_t(k)] == 1 ? fid_notched(r, d)
-             : fam[size_t(k)] == 2 ? fid_pyramid(r, d) : fid_multibody(r, d);
-    Vector3d p = place(sect[size_t(k)], r.uni(120, 160));
-    Isometry3d T = pose(p, 0, 0, r.uni(-180, 180)) * pose(Vector3d(-25, -20, 0), 0, 0, 0);
-    c.bodies.push_back({std::string(1, char('A' + k)), "fiducial", m, T, k});
-    c.fid_desc.push_back(d);
-  }
-  int next = nf;
-  {  // a second part: a plate with a pocket-like step
-    std::vector<Vector2d> poly = {{0, 0}, {70, 0}, {70, 25}, {45, 25}, {45, 50}, {0, 50}};
-    Mesh m = prism(poly, 0, r.uni(15, 30));
-    c.bodies.push_back({"second_part", "clutter", m,
-                        pose(place(sect[size_t(next++)], r.uni(130, 170)), 0, 0, r.uni(-180, 180)) *
-                            pose(Vector3d(-35, -25, 0), 0, 0, 0), -1});
-  }
-  if (next < nsect) {  // an angle plate fixture
-    Mesh m = box({0, 0, 0}, {60, 60, 12});
-    m.add(box({0, 0, 0}, {12, 60, r.uni(50, 80)}));
-    c.bodies.push_back({"angle_plate", "clutter", m,
-                        pose(place(sect[size_t(next++)], r.uni(140, 175)), 0, 0, r.uni(-180, 180)) *
-                            pose(Vector3d(-30, -30, 0), 0, 0, 0), -1});
-  }
-  bool mirror_trap = r.chance(0.5) && next < nsect;
-  if (mirror_trap) {  // a mirrored copy of fiducial A: same faces, the other hand
-    const Body& A = c.bodies[2 + (vise ? 1 : 2)];
-    Mesh m = A.mesh.mirrored_x();
-    c.bodies.push_back({"mirror_of_A", "lookalike", m,
-                        pose(place(sect[size_t(next++)], r.uni(140, 170)), 0, 0, r.uni(-180, 180)), -1});
-  }
-  // ---- scans
-  c.spacing = r.uni(0.3, 0.5);
-  c.noise = r.uni(0.04, 0.18);
-  std::vector<int> all;
-  for (size_t i = 0; i < c.bodies.size(); ++i) all.push_back(int(i));
-  RayScene rs(c.bodies, all);
-  std::vector<int> fid_bodies, look_bodies;
-  for (size_t i = 0; i < c.bodies.size(); ++i) {
-    if (c.bodies[i].kind == "fiducial") fid_bodies.push_back(int(i));
-    if (c.bodies[i].kind == "lookalike") look_bodies.push_back(int(i));
-  }
-  auto body_centre = [&](int b) {
-    Vector3d s = Vector3d::Zero();
-    for (auto& v : c.bodies[size_t(b)].mesh.v) s += v;
-    return Vector3d(c.bodies[size_t(b)].T * (s / double(c.bodies[size_t(b)].mesh.v.size())));
-  };
-  Vector3d wp_c = c.T_true_wp * Vector3d(Lx / 2, Ly / 2, Lz / 2);
-  auto make_sensor = [&](double dist) {
-    Sensor s;
-    if (small) s.W = 320, s.H = 240;
-    s.work_distance = dist;
-    s.f = dist / (c.spacing * r.uni(0.9, 1.1)) * (small ? 0.5 : 1.0);
-    s.baseline = r.uni(80, 160);
-    s.noise = c.noise * r.uni(0.8, 1.2);
-    s.bias = r.uni(-0.15, 0.3);
-    s.smooth = r.uni(0.0, 0.6);
-    s.edge_px = r.integer(1, 2);
-    s.edge_p = r.uni(0.4, 1.0);
-    s.scale = r.uni(-0.0012, 0.0012);
-    s.outliers = r.chance(0.3) ? r.uni(0.002, 0.02) : 0.0;
-    if (g_ideal) s.noise = 0.01, s.bias = 0, s.smooth = 0, s.edge_p = 0, s.scale = 0, s.outliers = 0;
-    return s;
-  };
-  auto counts = [&](const ScanOut& o) {
-    std::vector<int> n(size_t(nf), 0);
-    for (int b : o.body)
-      if (b >= 0 && c.bodies[size_t(b)].fiducial >= 0) ++n[size_t(c.bodies[size_t(b)].fiducial)];
-    return n;
-  };
-  int nscans = small ? 3 : r.integer(5, 7);
-  std::vector<double> A_values = {0, 30, -30, 60, -45, 15, 45};
-  for (int k = 0; k < nscans; ++k) {
-    Scan s;
-    double dist = r.uni(300, 480);
-    s.sensor = make_sensor(dist);
-    Vector3d fc = body_centre(fid_bodies[size_t(k % nf)]);
-    Vector3d target = wp_c + r.uni(0.3, 0.65) * (fc - wp_c);
-    // the scanner stands on the fiducial's side of the part, looking in and down
-    double az = std::atan2(fc.y() - wp_c.y(), fc.x() - wp_c.x()) + deg(r.uni(-60, 60)),
-           el = deg(r.uni(35, 70));
-    Vector3d dir(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
-    Isometry3d Tc = look_at(target + dist * dir, target, r);
-    s.out = render(rs, Tc, s.sensor, r);
-    s.fid_counts = counts(s.out);
-    if (c.rotary) {
-      s.A = A_values[size_t(k) % A_values.size()];
-      // the pallet frame is the machine frame at A = 0; at A the scanner (fixed in the machine) sees the
-      // pallet turned: machine <- scan = M(A) * pallet <- scan
-      s.out.T_machine_scan = rot_A(s.A) * s.out.T_machine_scan;
+    Isometry3d dT = pose(Vector3d(r.uni(-2, 2), r.uni(-2, 2), r.uni(-0.5, 0.5)), r.uni(-0.4, 0.4),
+                         r.uni(-0.4, 0.4), r.uni(-2, 2));
+    c.T_true_wp = c.T_nominal_wp * dT;
+    c.bodies.push_back({"workpiece", "workpiece", stock, c.T_true_wp, -1});
+    if (vise) {
+        c.layout = "vise";
+        double jt = r.uni(18, 25), jh = r.uni(0.35, 0.6) * Lz, ext = r.uni(15, 30);
+        Mesh v =
+            box({-ext, -jt - 40, -zbase}, {Lx + ext, Ly + sy + jt + 40, -10});  // vise body below the part
+        v.add(box({-ext * 0.5, -jt, -10}, {Lx + ext * 0.5, 0, jh}));            // fixed jaw
+        v.add(box({-ext * 0.5, Ly + sy, -10}, {Lx + ext * 0.5, Ly + sy + jt, jh}));  // moving jaw
+        v.add(box({Lx * 0.1, -5, -10}, {Lx * 0.9, Ly + sy + 5, 0}));                 // parallels
+        c.bodies.push_back({"vise", "clutter", v, c.T_true_wp, -1});
+    } else {
+        c.layout = "clamps";
+        for (int k = 0; k < 2; ++k) {  // strap clamps on the x = Lx end and the y = Ly side
+            Mesh m = box({0, 0, 0}, {60, 18, 12});
+            m.add(box({38, 2, -Lz}, {52, 16, 0}));  // heel block down to the pallet
+            m.add(box({22, 5, 12}, {34, 13, 28}));  // stud and nut
+            Isometry3d T = k == 0 ? pose(Vector3d(Lx - 15, Ly * 0.3, Lz), 0, 0, 0)
+                                  : pose(Vector3d(Lx * 0.3, Ly - 15, Lz), 0, 0, 90);
+            c.bodies.push_back({"clamp" + std::to_string(k), "clutter", m, c.T_true_wp * T, -1});
+        }
     }
-    c.scans.push_back(std::move(s));
-  }
-  // traps
-  auto trap = [&](const std::string& kind, Vector3d target, int tries) {
-    for (int t = 0; t < tries; ++t) {
-      Scan s;
-      double dist = r.uni(260, 340);
-      s.sensor = make_sensor(dist);
-      s.sensor.W = small ? 200 : 400, s.sensor.H = small ? 150 : 300;
-      double az = r.uni(0, 2 * kPi), el = deg(r.uni(50, 85));
-      Vector3d dir(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
-      Vector3d tg = target + Vector3d(r.uni(-10, 10), r.uni(-10, 10), 0);
-      s.out = render(rs, look_at(tg + dist * dir, tg, r), s.sensor, r);
-      s.fid_counts = counts(s.out);
-      int nfid = 0, other = 0;
-      for (int n : s.fid_counts) nfid += n;
-      for (int b : s.out.body)
-        if (b > 0) ++other;
-      if (nfid > 0 || s.out.pts.size() < 5000) continue;
-      if (kind == "plane" && other > 0) continue;
-      s.trap = kind;
-      if (c.rotary) {
-        s.A = A_values[size_t(c.scans.size()) % A_values.size()];
-        s.out.T_machine_scan = rot_A(s.A) * s.out.T_machine_scan;
-      }
-      c.scans.push_back(std::move(s));
-      return;
+    // fiducials around the part, in sectors; the other sectors get a second part, a fixture, a look-alike
+    int nf = r.integer(2, 3);
+    std::vector<int> fam = {0, 1, 2, 3};
+    std::shuffle(fam.begin(), fam.end(), r.g);
+    int nsect = 6;
+    std::vector<int> sect = {0, 1, 2, 3, 4, 5};
+    std::shuffle(sect.begin(), sect.end(), r.g);
+    // fiducial A stands off the part's datum corner (where its finished x = 0 and y = 0 walls face), as a
+    // machinist sets a cell up so that one scan sees the datum faces and a fiducial together
+    double corner_az = yaw + 225.0;
+    double a0 = corner_az - 360.0 / nsect * sect[0];
+    Vector3d centre = c.T_nominal_wp * Vector3d(Lx / 2, Ly / 2, 0);
+    centre.z() = 0;
+    auto place = [&](int s, double rad) {
+        double a = deg(a0 + 360.0 / nsect * s + r.uni(-12, 12));
+        return Vector3d(centre.x() + rad * std::cos(a), centre.y() + rad * std::sin(a), 0);
+    };
+    for (int k = 0; k < nf; ++k) {
+        std::string d;
+        Mesh m = fam[size_t(k)] == 0   ? fid_stepped(r, d)
+                 : fam[size_t(k)] == 1 ? fid_notched(r, d)
+                 : fam[size_t(k)] == 2 ? fid_pyramid(r, d)
+                                       : fid_multibody(r, d);
+        Vector3d p = place(sect[size_t(k)], r.uni(120, 160));
+        Isometry3d T = pose(p, 0, 0, r.uni(-180, 180)) * pose(Vector3d(-25, -20, 0), 0, 0, 0);
+        c.bodies.push_back({std::string(1, char('A' + k)), "fiducial", m, T, k});
+        c.fid_desc.push_back(d);
     }
-  };
-  if (!small || true) {
-    if (r.chance(0.6)) trap("no_fiducial", wp_c, 30);
-    if (r.chance(0.5)) {  // a bare patch of pallet: a corner
-      Vector3d corner(r.chance(0.5) ? 225 : -225, r.chance(0.5) ? 165 : -165, 0);
-      trap("plane", corner, 30);
+    int next = nf;
+    {  // a second part: a plate with a pocket-like step
+        std::vector<Vector2d> poly = {{0, 0}, {70, 0}, {70, 25}, {45, 25}, {45, 50}, {0, 50}};
+        Mesh m = prism(poly, 0, r.uni(15, 30));
+        c.bodies.push_back({"second_part", "clutter", m,
+                            pose(place(sect[size_t(next++)], r.uni(130, 170)), 0, 0, r.uni(-180, 180)) *
+                                pose(Vector3d(-35, -25, 0), 0, 0, 0),
+                            -1});
     }
-    if (mirror_trap) trap("mirror", body_centre(look_bodies[0]), 30);
-  }
-  // shuffle so that traps are not always last
-  std::shuffle(c.scans.begin(), c.scans.end(), r.g);
-  return c;
+    if (next < nsect) {  // an angle plate fixture
+        Mesh m = box({0, 0, 0}, {60, 60, 12});
+        m.add(box({0, 0, 0}, {12, 60, r.uni(50, 80)}));
+        c.bodies.push_back({"angle_plate", "clutter", m,
+                            pose(place(sect[size_t(next++)], r.uni(140, 175)), 0, 0, r.uni(-180, 180)) *
+                                pose(Vector3d(-30, -30, 0), 0, 0, 0),
+                            -1});
+    }
+    bool mirror_trap = r.chance(0.5) && next < nsect;
+    if (mirror_trap) {  // a mirrored copy of fiducial A: same faces, the other hand
+        const Body& A = c.bodies[2 + (vise ? 1 : 2)];
+        Mesh m = A.mesh.mirrored_x();
+        c.bodies.push_back({"mirror_of_A", "lookalike", m,
+                            pose(place(sect[size_t(next++)], r.uni(140, 170)), 0, 0, r.uni(-180, 180)), -1});
+    }
+    // ---- scans
+    c.spacing = r.uni(0.3, 0.5);
+    c.noise = r.uni(0.04, 0.18);
+    std::vector<int> all;
+    for (size_t i = 0; i < c.bodies.size(); ++i) all.push_back(int(i));
+    RayScene rs(c.bodies, all);
+    std::vector<int> fid_bodies, look_bodies;
+    for (size_t i = 0; i < c.bodies.size(); ++i) {
+        if (c.bodies[i].kind == "fiducial") fid_bodies.push_back(int(i));
+        if (c.bodies[i].kind == "lookalike") look_bodies.push_back(int(i));
+    }
+    auto body_centre = [&](int b) {
+        Vector3d s = Vector3d::Zero();
+        for (auto& v : c.bodies[size_t(b)].mesh.v) s += v;
+        return Vector3d(c.bodies[size_t(b)].T * (s / double(c.bodies[size_t(b)].mesh.v.size())));
+    };
+    Vector3d wp_c = c.T_true_wp * Vector3d(Lx / 2, Ly / 2, Lz / 2);
+    auto make_sensor = [&](double dist) {
+        Sensor s;
+        if (small) s.W = 320, s.H = 240;
+        s.work_distance = dist;
+        s.f = dist / (c.spacing * r.uni(0.9, 1.1)) * (small ? 0.5 : 1.0);
+        s.baseline = r.uni(80, 160);
+        s.noise = c.noise * r.uni(0.8, 1.2);
+        s.bias = r.uni(-0.15, 0.3);
+        s.smooth = r.uni(0.0, 0.6);
+        s.edge_px = r.integer(1, 2);
+        s.edge_p = r.uni(0.4, 1.0);
+        s.scale = r.uni(-0.0012, 0.0012);
+        s.outliers = r.chance(0.3) ? r.uni(0.002, 0.02) : 0.0;
+        if (g_ideal) s.noise = 0.01, s.bias = 0, s.smooth = 0, s.edge_p = 0, s.scale = 0, s.outliers = 0;
+        return s;
+    };
+    auto counts = [&](const ScanOut& o) {
+        std::vector<int> n(size_t(nf), 0);
+        for (int b : o.body)
+            if (b >= 0 && c.bodies[size_t(b)].fiducial >= 0) ++n[size_t(c.bodies[size_t(b)].fiducial)];
+        return n;
+    };
+    int nscans = small ? 3 : r.integer(5, 7);
+    std::vector<double> A_values = {0, 30, -30, 60, -45, 15, 45};
+    for (int k = 0; k < nscans; ++k) {
+        Scan s;
+        double dist = r.uni(300, 480);
+        s.sensor = make_sensor(dist);
+        Vector3d fc = body_centre(fid_bodies[size_t(k % nf)]);
+        Vector3d target = wp_c + r.uni(0.3, 0.65) * (fc - wp_c);
+        // the scanner stands on the fiducial's side of the part, looking in and down
+        double az = std::atan2(fc.y() - wp_c.y(), fc.x() - wp_c.x()) + deg(r.uni(-60, 60)),
+               el = deg(r.uni(35, 70));
+        Vector3d dir(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
+        Isometry3d Tc = look_at(target + dist * dir, target, r);
+        s.out = render(rs, Tc, s.sensor, r);
+        s.fid_counts = counts(s.out);
+        if (c.rotary) {
+            s.A = A_values[size_t(k) % A_values.size()];
+            // the pallet frame is the machine frame at A = 0; at A the scanner (fixed in the machine) sees
+            // the pallet turned: machine <- scan = M(A) * pallet <- scan
+            s.out.T_machine_scan = rot_A(s.A) * s.out.T_machine_scan;
+        }
+        c.scans.push_back(std::move(s));
+    }
+    // traps
+    auto trap = [&](const std::string& kind, Vector3d target, int tries) {
+        for (int t = 0; t < tries; ++t) {
+            Scan s;
+            double dist = r.uni(260, 340);
+            s.sensor = make_sensor(dist);
+            s.sensor.W = small ? 200 : 400, s.sensor.H = small ? 150 : 300;
+            double az = r.uni(0, 2 * kPi), el = deg(r.uni(50, 85));
+            Vector3d dir(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
+            Vector3d tg = target + Vector3d(r.uni(-10, 10), r.uni(-10, 10), 0);
+            s.out = render(rs, look_at(tg + dist * dir, tg, r), s.sensor, r);
+            s.fid_counts = counts(s.out);
+            int nfid = 0, other = 0;
+            for (int n : s.fid_counts) nfid += n;
+            for (int b : s.out.body)
+                if (b > 0) ++other;
+            if (nfid > 0 || s.out.pts.size() < 5000) continue;
+            if (kind == "plane" && other > 0) continue;
+            s.trap = kind;
+            if (c.rotary) {
+                s.A = A_values[size_t(c.scans.size()) % A_values.size()];
+                s.out.T_machine_scan = rot_A(s.A) * s.out.T_machine_scan;
+            }
+            c.scans.push_back(std::move(s));
+            return;
+        }
+    };
+    if (!small || true) {
+        if (r.chance(0.6)) trap("no_fiducial", wp_c, 30);
+        if (r.chance(0.5)) {  // a bare patch of pallet: a corner
+            Vector3d corner(r.chance(0.5) ? 225 : -225, r.chance(0.5) ? 165 : -165, 0);
+            trap("plane", corner, 30);
+        }
+        if (mirror_trap) trap("mirror", body_centre(look_bodies[0]), 30);
+    }
+    // shuffle so that traps are not always last
+    std::shuffle(c.scans.begin(), c.scans.end(), r.g);
+    return c;
 }
 
 double unit_factor(const std::string& u) {  // job units per mm
-  if (u == "mm") return 1.0;
-  if (u == "um") return 1000.0;
-  if (u == "m") return 0.001;
-  if (u == "in") return 1.0 / 25.4;
-  throw std::runtime_error("unknown unit " + u + " (um, mm, m, in)");
+    if (u == "mm") return 1.0;
+    if (u == "um") return 1000.0;
+    if (u == "m") return 0.001;
+    if (u == "in") return 1.0 / 25.4;
+    throw std::runtime_error("unknown unit " + u + " (um, mm, m, in)");
 }
 
 void write_cell(const Cell& c, const fs::path& dir, uint64_t seed, const std::string& unit) {
-  const double k = unit_factor(unit);
-  fs::create_directories(dir / "models");
-  fs::create_directories(dir / "scans");
-  std::ostringstream y;
-  y << "# partloc_world2 seed " << seed << " (" << c.layout << (c.rotary ? ", rotary A" : "") << ")\n";
-  y << "units: " << unit << "\n";
-  if (c.scanner_block) y << "scanner:\n  point_spacing: " << num(c.spacing * k) << "\n  noise: " << num(c.noise * k) << "\n";
-  if (c.rotary) y << "machine:\n  axes:\n    - {name: A, type: rotary, direction: [1, 0, 0], point: [0, 0, 0]}\n";
-  std::string mw = c.rotary ? "[A]" : "[]";
-  y << "fiducials:\n";
-  json truth;
-  truth["seed"] = seed;
-  truth["units"] = unit;
-  truth["layout"] = c.layout;
-  truth["rotary"] = c.rotary;
-  truth["fiducials"] = json::array();
-  for (auto& b : c.bodies)
-    if (b.kind == "fiducial") {
-      std::string f = "models/fiducial_" + b.name + ".stl";
-      write_stl(dir / f, b.mesh, k);
-      y << "  - name: " << b.name << "\n    model: " << f << "\n    pose: " << matrix_yaml(b.T, k)
-        << "\n    moves_with: " << mw << "\n";
-      truth["fiducials"].push_back({{"name", b.name}, {"design", c.fid_desc[size_t(b.fiducial)]},
-                                    {"T_machine_fiducial", matrix_json(b.T, k)}});
+    const double k = unit_factor(unit);
+    fs::create_directories(dir / "models");
+    fs::create_directories(dir / "scans");
+    std::ostringstream y;
+    y << "# partloc_world2 seed " << seed << " (" << c.layout << (c.rotary ? ", rotary A" : "") << ")\n";
+    y << "units: " << unit << "\n";
+    if (c.scanner_block)
+        y << "scanner:\n  point_spacing: " << num(c.spacing * k) << "\n  noise: " << num(c.noise * k) << "\n";
+    if (c.rotary)
+        y << "machine:\n  axes:\n    - {name: A, type: rotary, direction: [1, 0, 0], point: [0, 0, 0]}\n";
+    std::string mw = c.rotary ? "[A]" : "[]";
+    y << "fiducials:\n";
+    json truth;
+    truth["seed"] = seed;
+    truth["units"] = unit;
+    truth["layout"] = c.layout;
+    truth["rotary"] = c.rotary;
+    truth["fiducials"] = json::array();
+    for (auto& b : c.bodies)
+        if (b.kind == "fiducial") {
+            std::string f = "models/fiducial_" + b.name + ".stl";
+            write_stl(dir / f, b.mesh, k);
+            y << "  - name: " << b.name << "\n    model: " << f << "\n    pose: " << matrix_yaml(b.T, k)
+              << "\n    moves_with: " << mw << "\n";
+            truth["fiducials"].push_back({{"name", b.name},
+                                          {"design", c.fid_desc[size_t(b.fiducial)]},
+                                          {"T_machine_fiducial", matrix_json(b.T, k)}});
+        }
+    // workpiece: reference surfaces (or datums) and the final part, at the nominal pose, machine frame
+    Mesh ref;
+    for (auto& d : c.wp_datums) ref.add(d, c.T_nominal_wp);
+    write_stl(dir / "models/final_part.stl", c.wp_nominal.transformed(c.T_nominal_wp), k);
+    y << "workpiece:\n";
+    if (c.use_datums) {
+        const char* names[3] = {"A", "B", "C"};
+        y << "  datums:\n";
+        for (int i = 0; i < 3; ++i) {
+            std::string f = std::string("models/datum_") + names[i] + ".stl";
+            write_stl(dir / f, c.wp_datums[size_t(i)].transformed(c.T_nominal_wp), k);
+            y << "    - {name: " << names[i] << ", surfaces: " << f << "}\n";
+        }
+    } else {
+        write_stl(dir / "models/workpiece_reference.stl", ref, k);
+        y << "  reference_surfaces: models/workpiece_reference.stl\n";
     }
-  // workpiece: reference surfaces (or datums) and the final part, at the nominal pose, machine frame
-  Mesh ref;
-  for (auto& d : c.wp_datums) ref.add(d, c.T_nominal_wp);
-  write_stl(dir / "models/final_part.stl", c.wp_nominal.transformed(c.T_nominal_wp), k);
-  y << "workpiece:\n";
-  if (c.use_datums) {
-    const char* names[3] = {"A", "B", "C"};
-    y << "  datums:\n";
-    for (int i = 0; i < 3; ++i) {
-      std::string f = std::string("models/datum_") + names[i] + ".stl";
-      write_stl(dir / f, c.wp_datums[size_t(i)].transformed(c.T_nominal_wp), k);
-      y << "    - {name: " << names[i] << ", surfaces: " << f << "}\n";
+    y << "  datum: " << matrix_yaml(c.T_nominal_wp, k)
+      << "\n  final_part: models/final_part.stl\n  moves_with: " << mw << "\nscans:\n";
+    truth["T_machine_workpiece"] = matrix_json(c.T_true_wp, k);
+    truth["T_machine_workpiece_nominal"] = matrix_json(c.T_nominal_wp, k);
+    {  // the part's extent (workpiece frame) for the error at its corners
+        Eigen::AlignedBox3d bb;
+        for (auto& v : c.wp_nominal.v) bb.extend(v);
+        truth["workpiece_box"] = {{bb.min().x() * k, bb.min().y() * k, bb.min().z() * k},
+                                  {bb.max().x() * k, bb.max().y() * k, bb.max().z() * k}};
     }
-  } else {
-    write_stl(dir / "models/workpiece_reference.stl", ref, k);
-    y << "  reference_surfaces: models/workpiece_reference.stl\n";
-  }
-  y << "  datum: " << matrix_yaml(c.T_nominal_wp, k) << "\n  final_part: models/final_part.stl\n  moves_with: " << mw
-    << "\nscans:\n";
-  truth["T_machine_workpiece"] = matrix_json(c.T_true_wp, k);
-  truth["T_machine_workpiece_nominal"] = matrix_json(c.T_nominal_wp, k);
-  {  // the part's extent (workpiece frame) for the error at its corners
-    Eigen::AlignedBox3d bb;
-    for (auto& v : c.wp_nominal.v) bb.extend(v);
-    truth["workpiece_box"] = {{bb.min().x() * k, bb.min().y() * k, bb.min().z() * k},
-                              {bb.max().x() * k, bb.max().y() * k, bb.max().z() * k}};
-  }
-  truth["scans"] = json::array();
-  for (size_t i = 0; i < c.scans.size(); ++i) {
-    const Scan& s = c.scans[i];
-    char name[64];
-    std::snprintf(name, sizeof name, "scans/scan_%02zu.ply", i + 1);
-    write_ply(dir / name, s.out.pts, k);
-    y << "  - {file: " << name;
-    if (c.rotary) y << ", axes: {A: " << num(s.A) << "}";
-    y << "}\n";
-    json js;
-    js["file"] = name;
-    js["trap"] = s.trap.empty() ? json(nullptr) : json(s.trap);
-    js["T_machine_scan"] = matrix_json(s.out.T_machine_scan, k);
-    js["A"] = s.A;
-    js["points"] = s.out.pts.size();
-    js["shadowed"] = s.out.shadowed;
-    json fc = json::object();
-    int total = 0;
-    for (size_t f = 0; f < s.fid_counts.size(); ++f) fc[std::string(1, char('A' + f))] = s.fid_counts[f], total += s.fid_counts[f];
-    js["fiducial_points"] = fc;
-    js["fiducial_points_total"] = total;
-    // check points: up to 60 of the scan's fiducial points (else any points), scan frame
-    std::vector<size_t> idx;
-    for (size_t p = 0; p < s.out.pts.size(); ++p)
-      if (s.out.body[p] >= 0 && c.bodies[size_t(s.out.body[p])].fiducial >= 0) idx.push_back(p);
-    if (idx.empty())
-      for (size_t p = 0; p < s.out.pts.size(); ++p) idx.push_back(p);
-    json cp = json::array();
-    double rmax = 0;
-    for (size_t q = 0; q < 60 && !idx.empty(); ++q) {
-      const Vector3d& p = s.out.pts[idx[q * idx.size() / 60]];
-      cp.push_back({p.x() * k, p.y() * k, p.z() * k});
-      rmax = std::max(rmax, (p - Vector3d(0, 0, s.sensor.work_distance)).norm());
+    truth["scans"] = json::array();
+    for (size_t i = 0; i < c.scans.size(); ++i) {
+        const Scan& s = c.scans[i];
+        char name[64];
+        std::snprintf(name, sizeof name, "scans/scan_%02zu.ply", i + 1);
+        write_ply(dir / name, s.out.pts, k);
+        y << "  - {file: " << name;
+        if (c.rotary) y << ", axes: {A: " << num(s.A) << "}";
+        y << "}\n";
+        json js;
+        js["file"] = name;
+        js["trap"] = s.trap.empty() ? json(nullptr) : json(s.trap);
+        js["T_machine_scan"] = matrix_json(s.out.T_machine_scan, k);
+        js["A"] = s.A;
+        js["points"] = s.out.pts.size();
+        js["shadowed"] = s.out.shadowed;
+        json fc = json::object();
+        int total = 0;
+        for (size_t f = 0; f < s.fid_counts.size(); ++f)
+            fc[std::string(1, char('A' + f))] = s.fid_counts[f], total += s.fid_counts[f];
+        js["fiducial_points"] = fc;
+        js["fiducial_points_total"] = total;
+        // check points: up to 60 of the scan's fiducial points (else any points), scan frame
+        std::vector<size_t> idx;
+        for (size_t p = 0; p < s.out.pts.size(); ++p)
+            if (s.out.body[p] >= 0 && c.bodies[size_t(s.out.body[p])].fiducial >= 0) idx.push_back(p);
+        if (idx.empty())
+            for (size_t p = 0; p < s.out.pts.size(); ++p) idx.push_back(p);
+        json cp = json::array();
+        double rmax = 0;
+        for (size_t q = 0; q < 60 && !idx.empty(); ++q) {
+            const Vector3d& p = s.out.pts[idx[q * idx.size() / 60]];
+            cp.push_back({p.x() * k, p.y() * k, p.z() * k});
+            rmax = std::max(rmax, (p - Vector3d(0, 0, s.sensor.work_distance)).norm());
+        }
+        js["check_points"] = cp;
+        js["sensor"] = {{"noise", s.sensor.noise * k},
+                        {"bias", s.sensor.bias * k},
+                        {"scale_error", s.sensor.scale},
+                        {"smoothing", s.sensor.smooth},
+                        {"edge_dropout_px", s.sensor.edge_px},
+                        {"edge_dropout_p", s.sensor.edge_p},
+                        {"outliers", s.sensor.outliers},
+                        {"baseline", s.sensor.baseline * k},
+                        {"distance", s.sensor.work_distance * k},
+                        {"focal_px", s.sensor.f}};
+        // tolerance on the check points: 0.1 mm, plus what the sensor's own systematic errors move a right
+        // rigid fit by (the bias along the line of sight; the scale error at the check points' distance from
+        // the centre of the scanner's volume, work_distance along its axis, about which it scales)
+        js["tolerance"] = {
+            {"translation", (0.1 + std::abs(s.sensor.bias) + std::abs(s.sensor.scale) * rmax) * k},
+            {"rotation_deg", 0.05}};
+        truth["scans"].push_back(js);
     }
-    js["check_points"] = cp;
-    js["sensor"] = {{"noise", s.sensor.noise * k}, {"bias", s.sensor.bias * k}, {"scale_error", s.sensor.scale},
-                    {"smoothing", s.sensor.smooth}, {"edge_dropout_px", s.sensor.edge_px},
-                    {"edge_dropout_p", s.sensor.edge_p}, {"outliers", s.sensor.outliers},
-                    {"baseline", s.sensor.baseline * k}, {"distance", s.sensor.work_distance * k},
-                    {"focal_px", s.sensor.f}};
-    // tolerance on the check points: 0.1 mm, plus what the sensor's own systematic errors move a right
-    // rigid fit by (the bias along the line of sight; the scale error at the check points' distance from
-    // the centre of the scanner's volume, work_distance along its axis, about which it scales)
-    js["tolerance"] = {{"translation", (0.1 + std::abs(s.sensor.bias) + std::abs(s.sensor.scale) * rmax) * k},
-                       {"rotation_deg", 0.05}};
-    truth["scans"].push_back(js);
-  }
-  std::ofstream(dir / "job.yaml") << y.str();
-  std::ofstream(dir / "truth.json") << truth.dump(1) << "\n";
+    std::ofstream(dir / "job.yaml") << y.str();
+    std::ofstream(dir / "truth.json") << truth.dump(1) << "\n";
 }
 
 // ---------------------------------------------------------------- self-test (ctest world2_smoke)
 int selftest() {
-  int fails = 0;
-  auto check = [&](bool ok, const std::string& what) {
-    std::printf("%s  %s\n", ok ? "ok  " : "FAIL", what.c_str());
-    if (!ok) ++fails;
-  };
-  // 1. shadowing, against geometry worked out by hand: a floor, a 40 mm tall post; camera straight above,
-  //    projector 150 mm along +x at the same height. The post's shadow from the projector falls on the floor
-  //    on the post's -x side, over a length h * bx / (H - h) seen from the projector.
-  {
-    std::vector<Body> b = {{"floor", "pallet", box({-200, -200, -10}, {200, 200, 0}), Isometry3d::Identity(), -1},
-                           {"post", "clutter", box({-10, -10, 0}, {10, 10, 40}), Isometry3d::Identity(), -1}};
-    RayScene rs(b, {0, 1});
-    Sensor s;
-    s.W = 400, s.H = 400, s.f = 1000, s.baseline = 150, s.noise = 0, s.bias = 0, s.smooth = 0, s.edge_p = 0,
-    s.scale = 0, s.outliers = 0, s.work_distance = 400;
-    Rng r(1);
-    Isometry3d T = Isometry3d::Identity();
-    T.linear() << 1, 0, 0, 0, -1, 0, 0, 0, -1;  // looking down -z, camera x = machine x
-    T.translation() = Vector3d(0, 0, 400);
-    // the projector sits at camera x + baseline, camera y + 0.08 baseline: machine (150, -12, 400)
-    ScanOut o = render(rs, T, s, r);
-    int in_shadow = 0, floor_pts = 0;
-    // the shadow of the post's top edge x = -10 from the projector at x = 150, z = 400: on the floor at
-    // x = 150 - 160 * 400 / 360 = -27.8; the floor between x = -27.8 and -10 (|y| < 9) is unlit.
-    for (size_t i = 0; i < o.pts.size(); ++i) {
-      Vector3d p = o.T_machine_scan * o.pts[i];
-      if (std::abs(p.z()) < 0.01) {
-        ++floor_pts;
-        if (p.x() > -27.0 && p.x() < -11.0 && std::abs(p.y()) < 8.0) ++in_shadow;
-      }
+    int fails = 0;
+    auto check = [&](bool ok, const std::string& what) {
+        std::printf("%s  %s\n", ok ? "ok  " : "FAIL", what.c_str());
+        if (!ok) ++fails;
+    };
+    // 1. shadowing, against geometry worked out by hand: a floor, a 40 mm tall post; camera straight above,
+    //    projector 150 mm along +x at the same height. The post's shadow from the projector falls on the
+    //    floor on the post's -x side, over a length h * bx / (H - h) seen from the projector.
+    {
+        std::vector<Body> b = {
+            {"floor", "pallet", box({-200, -200, -10}, {200, 200, 0}), Isometry3d::Identity(), -1},
+            {"post", "clutter", box({-10, -10, 0}, {10, 10, 40}), Isometry3d::Identity(), -1}};
+        RayScene rs(b, {0, 1});
+        Sensor s;
+        s.W = 400, s.H = 400, s.f = 1000, s.baseline = 150, s.noise = 0, s.bias = 0, s.smooth = 0,
+        s.edge_p = 0, s.scale = 0, s.outliers = 0, s.work_distance = 400;
+        Rng r(1);
+        Isometry3d T = Isometry3d::Identity();
+        T.linear() << 1, 0, 0, 0, -1, 0, 0, 0, -1;  // looking down -z, camera x = machine x
+        T.translation() = Vector3d(0, 0, 400);
+        // the projector sits at camera x + baseline, camera y + 0.08 baseline: machine (150, -12, 400)
+        ScanOut o = render(rs, T, s, r);
+        int in_shadow = 0, floor_pts = 0;
+        // the shadow of the post's top edge x = -10 from the projector at x = 150, z = 400: on the floor at
+        // x = 150 - 160 * 400 / 360 = -27.8; the floor between x = -27.8 and -10 (|y| < 9) is unlit.
+        for (size_t i = 0; i < o.pts.size(); ++i) {
+            Vector3d p = o.T_machine_scan * o.pts[i];
+            if (std::abs(p.z()) < 0.01) {
+                ++floor_pts;
+                if (p.x() > -27.0 && p.x() < -11.0 && std::abs(p.y()) < 8.0) ++in_shadow;
+            }
+        }
+        check(in_shadow == 0,
+              "no floor point in the projector's shadow of the post (" + std::to_string(in_shadow) + ")");
+        check(floor_pts > 50000, "the lit floor is seen (" + std::to_string(floor_pts) + " points)");
+        check(o.shadowed > 100,
+              "camera hits that the projector does not see are dropped (" + std::to_string(o.shadowed) + ")");
+        // and the floor beyond the post on the +x side is lit: points at x in (11, 27)
+        int lit = 0;
+        for (auto& q : o.pts) {
+            Vector3d p = o.T_machine_scan * q;
+            if (std::abs(p.z()) < 0.01 && p.x() > 11 && p.x() < 27 && std::abs(p.y()) < 8) ++lit;
+        }
+        check(lit > 100,
+              "the floor on the projector's side of the post is seen (" + std::to_string(lit) + ")");
+        // noise-free points lie on the surfaces: every point on z = 0, z = 40 or a post side
+        int off = 0;
+        for (auto& q : o.pts) {
+            Vector3d p = o.T_machine_scan * q;
+            double d = std::min(std::abs(p.z()), mesh_dist(p, b[1].mesh));
+            if (d > 0.01) ++off;
+        }
+        check(off == 0, "noise-free points lie on the surfaces through the truth transform (" +
+                            std::to_string(off) + " off)");
     }
-    check(in_shadow == 0, "no floor point in the projector's shadow of the post (" + std::to_string(in_shadow) + ")");
-    check(floor_pts > 50000, "the lit floor is seen (" + std::to_string(floor_pts) + " points)");
-    check(o.shadowed > 100, "camera hits that the projector does not see are dropped (" + std::to_string(o.shadowed) + ")");
-    // and the floor beyond the post on the +x side is lit: points at x in (11, 27)
-    int lit = 0;
-    for (auto& q : o.pts) {
-      Vector3d p = o.T_machine_scan * q;
-      if (std::abs(p.z()) < 0.01 && p.x() > 11 && p.x() < 27 && std::abs(p.y()) < 8) ++lit;
+    // 2. a small cell: the truth maps each scan's fiducial points onto the fiducial models; traps marked
+    for (uint64_t seed : {3ull, 8ull}) {
+        Cell c = build_cell(seed, true);
+        Cell c2 = build_cell(seed, true);
+        bool same = c.scans.size() == c2.scans.size();
+        for (size_t i = 0; same && i < c.scans.size(); ++i)
+            same = c.scans[i].out.pts.size() == c2.scans[i].out.pts.size() &&
+                   (c.scans[i].out.pts.empty() || c.scans[i].out.pts.back() == c2.scans[i].out.pts.back());
+        check(same, "seed " + std::to_string(seed) + ": the same seed gives the same cell");
+        int traps = 0;
+        for (auto& s : c.scans) {
+            if (!s.trap.empty()) {
+                ++traps;
+                int n = 0;
+                for (int x : s.fid_counts) n += x;
+                check(n == 0,
+                      "seed " + std::to_string(seed) + ": trap '" + s.trap + "' shows no fiducial point");
+                continue;
+            }
+            // undo the scale error about the scan origin and the bias along each ray, then the distance to
+            // the fiducial mesh must be within the noise
+            double worst_rms = 0;
+            int nchk = 0;
+            double ss = 0;
+            Isometry3d Tms = s.out.T_machine_scan;
+            Vector3d cam_in_scan = Vector3d::Zero();
+            for (size_t p = 0; p < s.out.pts.size(); p += 7) {
+                int b = s.out.body[p];
+                if (b < 0 || c.bodies[size_t(b)].fiducial < 0) continue;
+                Vector3d cen(0, 0, s.sensor.work_distance);
+                Vector3d q = cen + (s.out.pts[p] - cen) / (1.0 + s.sensor.scale);
+                Vector3d ray = (q - cam_in_scan).normalized();
+                q -= s.sensor.bias * ray;
+                Vector3d pm = Tms * q;
+                if (c.rotary) pm = rot_A(s.A).inverse() * pm;
+                Vector3d pf = c.bodies[size_t(b)].T.inverse() * pm;
+                double d = mesh_dist(pf, c.bodies[size_t(b)].mesh);
+                ss += d * d;
+                ++nchk;
+            }
+            if (nchk) worst_rms = std::sqrt(ss / nchk);
+            check(nchk == 0 || worst_rms < 2.0 * s.sensor.noise + 0.01,
+                  "seed " + std::to_string(seed) + ": fiducial points on the model through the truth, RMS " +
+                      std::to_string(worst_rms) + " mm (noise " + std::to_string(s.sensor.noise) + ", " +
+                      std::to_string(nchk) + " points)");
+        }
+        std::printf("seed %llu: %zu scans, %d traps\n", (unsigned long long)seed, c.scans.size(), traps);
     }
-    check(lit > 100, "the floor on the projector's side of the post is seen (" + std::to_string(lit) + ")");
-    // noise-free points lie on the surfaces: every point on z = 0, z = 40 or a post side
-    int off = 0;
-    for (auto& q : o.pts) {
-      Vector3d p = o.T_machine_scan * q;
-      double d = std::min(std::abs(p.z()), mesh_dist(p, b[1].mesh));
-      if (d > 0.01) ++off;
-    }
-    check(off == 0, "noise-free points lie on the surfaces through the truth transform (" + std::to_string(off) + " off)");
-  }
-  // 2. a small cell: the truth maps each scan's fiducial points onto the fiducial models; traps marked
-  for (uint64_t seed : {3ull, 8ull}) {
-    Cell c = build_cell(seed, true);
-    Cell c2 = build_cell(seed, true);
-    bool same = c.scans.size() == c2.scans.size();
-    for (size_t i = 0; same && i < c.scans.size(); ++i)
-      same = c.scans[i].out.pts.size() == c2.scans[i].out.pts.size() &&
-             (c.scans[i].out.pts.empty() || c.scans[i].out.pts.back() == c2.scans[i].out.pts.back());
-    check(same, "seed " + std::to_string(seed) + ": the same seed gives the same cell");
-    int traps = 0;
-    for (auto& s : c.scans) {
-      if (!s.trap.empty()) {
-        ++traps;
-        int n = 0;
-        for (int x : s.fid_counts) n += x;
-        check(n == 0, "seed " + std::to_string(seed) + ": trap '" + s.trap + "' shows no fiducial point");
-        continue;
-      }
-      // undo the scale error about the scan origin and the bias along each ray, then the distance to the
-      // fiducial mesh must be within the noise
-      double worst_rms = 0;
-      int nchk = 0;
-      double ss = 0;
-      Isometry3d Tms = s.out.T_machine_scan;
-      Vector3d cam_in_scan = Vector3d::Zero();
-      for (size_t p = 0; p < s.out.pts.size(); p += 7) {
-        int b = s.out.body[p];
-        if (b < 0 || c.bodies[size_t(b)].fiducial < 0) continue;
-        Vector3d cen(0, 0, s.sensor.work_distance);
-        Vector3d q = cen + (s.out.pts[p] - cen) / (1.0 + s.sensor.scale);
-        Vector3d ray = (q - cam_in_scan).normalized();
-        q -= s.sensor.bias * ray;
-        Vector3d pm = Tms * q;
-        if (c.rotary) pm = rot_A(s.A).inverse() * pm;
-        Vector3d pf = c.bodies[size_t(b)].T.inverse() * pm;
-        double d = mesh_dist(pf, c.bodies[size_t(b)].mesh);
-        ss += d * d;
-        ++nchk;
-      }
-      if (nchk) worst_rms = std::sqrt(ss / nchk);
-      check(nchk == 0 || worst_rms < 2.0 * s.sensor.noise + 0.01,
-            "seed " + std::to_string(seed) + ": fiducial points on the model through the truth, RMS " +
-                std::to_string(worst_rms) + " mm (noise " + std::to_string(s.sensor.noise) + ", " +
-                std::to_string(nchk) + " points)");
-    }
-    std::printf("seed %llu: %zu scans, %d traps\n", (unsigned long long)seed, c.scans.size(), traps);
-  }
-  std::printf("%s\n", fails ? "SELFTEST FAILED" : "selftest passed");
-  return fails ? 1 : 0;
+    std::printf("%s\n", fails ? "SELFTEST FAILED" : "selftest passed");
+    return fails ? 1 : 0;
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string out, unit = "mm";
-  uint64_t seed = 1;
-  bool small = false;
-  for (int i = 1; i < argc; ++i) {
-    std::string a = argv[i];
-    auto next = [&]() -> std::string {
-      if (i + 1 >= argc) throw std::runtime_error(a + " needs a value");
-      return argv[++i];
-    };
-    try {
-      if (a == "--out") out = next();
-      else if (a == "--seed") seed = std::stoull(next());
-      else if (a == "--unit") unit = next();
-      else if (a == "--small") small = true;
-      else if (a == "--ideal") g_ideal = true;
-      else if (a == "--selftest") return selftest();
-      else if (a == "-h" || a == "--help") {
-        std::printf("partloc_world2 --out DIR [--seed N] [--unit um|mm|m|in] [--small] [--ideal]\npartloc_world2 --selftest\n");
-        return 0;
-      } else throw std::runtime_error("unknown option " + a);
-    } catch (std::exception& e) {
-      std::fprintf(stderr, "partloc_world2: %s\n", e.what());
-      return 2;
+    std::string out, unit = "mm";
+    uint64_t seed = 1;
+    bool small = false;
+    for (int i = 1; i < argc; ++i) {
+        std::string a = argv[i];
+        auto next = [&]() -> std::string {
+            if (i + 1 >= argc) throw std::runtime_error(a + " needs a value");
+            return argv[++i];
+        };
+        try {
+            if (a == "--out")
+                out = next();
+            else if (a == "--seed")
+                seed = std::stoull(next());
+            else if (a == "--unit")
+                unit = next();
+            else if (a == "--small")
+                small = true;
+            else if (a == "--ideal")
+                g_ideal = true;
+            else if (a == "--selftest")
+                return selftest();
+            else if (a == "-h" || a == "--help") {
+                std::printf(
+                    "partloc_world2 --out DIR [--seed N] [--unit um|mm|m|in] [--small] "
+                    "[--ideal]\npartloc_world2 --selftest\n");
+                return 0;
+            } else
+                throw std::runtime_error("unknown option " + a);
+        } catch (std::exception& e) {
+            std::fprintf(stderr, "partloc_world2: %s\n", e.what());
+            return 2;
+        }
     }
-  }
-  if (out.empty()) {
-    std::fprintf(stderr, "partloc_world2: --out DIR is required\n");
-    return 2;
-  }
-  try {
-    unit_factor(unit);
-    Cell c = build_cell(seed, small);
-    write_cell(c, out, seed, unit);
-    int traps = 0;
-    for (auto& s : c.scans) traps += !s.trap.empty();
-    std::printf("partloc_world2: seed %llu: %s%s, %zu fiducials, %zu scans (%d traps) -> %s\n",
-                (unsigned long long)seed, c.layout.c_str(), c.rotary ? ", rotary A" : "", c.fid_desc.size(),
-                c.scans.size(), traps, out.c_str());
-  } catch (std::exception& e) {
-    std::fprintf(stderr, "partloc_world2: %s\n", e.what());
-    return 1;
-  }
-  return 0;
+    if (out.empty()) {
+        std::fprintf(stderr, "partloc_world2: --out DIR is required\n");
+        return 2;
+    }
+    try {
+        unit_factor(unit);
+        Cell c = build_cell(seed, small);
+        write_cell(c, out, seed, unit);
+        int traps = 0;
+        for (auto& s : c.scans) traps += !s.trap.empty();
+        std::printf("partloc_world2: seed %llu: %s%s, %zu fiducials, %zu scans (%d traps) -> %s\n",
+                    (unsigned long long)seed, c.layout.c_str(), c.rotary ? ", rotary A" : "",
+                    c.fid_desc.size(), c.scans.size(), traps, out.c_str());
+    } catch (std::exception& e) {
+        std::fprintf(stderr, "partloc_world2: %s\n", e.what());
+        return 1;
+    }
+    return 0;
 }

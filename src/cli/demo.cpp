@@ -71,8 +71,7 @@ TestRow run_test(int test, std::uint64_t seed, const sim::ScenarioOptions& optio
     for (std::size_t i = 0; i < result.scans.size() && i < s.truth.scans.size(); ++i) {
         if (!result.scans[i].valid) continue;
         ++row.registered;
-        const PoseError e =
-            pose_error(result.scans[i].T_machine_scan, s.truth.scans[i].T_machine_scan);
+        const PoseError e = pose_error(result.scans[i].T_machine_scan, s.truth.scans[i].T_machine_scan);
         row.worst_scan_mm = std::max(row.worst_scan_mm, e.translation);
         row.worst_scan_deg = std::max(row.worst_scan_deg, e.rotation_deg);
     }

@@ -48,8 +48,7 @@ int main(int argc, char** argv) {
     }
     using partloc::cli::Progress;
     const Progress tell = progress ? Progress::On : quiet ? Progress::Off : Progress::Auto;
-    if (*run)
-        return partloc::cli::command_run(job_file, out_dir, threads, seed, cache_dir, !no_cache, tell);
+    if (*run) return partloc::cli::command_run(job_file, out_dir, threads, seed, cache_dir, !no_cache, tell);
     if (*demo) return partloc::cli::command_demo(demo_out, demo_seed, threads, tell);
     if (*simulate) return partloc::cli::command_simulate(sim_out, sim_seed);
     return 2;

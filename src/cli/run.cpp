@@ -2,10 +2,9 @@
 #include "partloc/pipeline/run.hpp"
 
 #include <open3d/utility/Logging.h>
-
-#include <cstdio>
 #include <unistd.h>
 
+#include <cstdio>
 #include <iostream>
 #include <optional>
 #include <sstream>
@@ -78,15 +77,18 @@ void print_summary(std::ostream& out, const std::string& job_file, const Job& jo
         out << "  uncertainty_95: origin +- " << triple(w.uncertainty.origin, d) << " " << u << ", euler +- "
             << triple(w.uncertainty.euler_deg, 3) << " deg\n";
     if (!result.warnings.empty()) {
-        out << "  located WITH " << result.warnings.size() << " WARNING" << (result.warnings.size() > 1 ? "S" : "")
-            << ": look at " << (result.warnings.size() > 1 ? "them" : "it") << " before cutting\n";
+        out << "  located WITH " << result.warnings.size() << " WARNING"
+            << (result.warnings.size() > 1 ? "S" : "") << ": look at "
+            << (result.warnings.size() > 1 ? "them" : "it") << " before cutting\n";
         for (const auto& warning : result.warnings) out << "  warning: " << warning << "\n";
     }
 }
 
 }  // namespace
 
-bool telling(Progress p) { return p == Progress::On || (p == Progress::Auto && ::isatty(STDERR_FILENO) == 1); }
+bool telling(Progress p) {
+    return p == Progress::On || (p == Progress::Auto && ::isatty(STDERR_FILENO) == 1);
+}
 
 int command_run(const std::string& job_file, const std::string& out_dir, int threads, std::uint64_t seed,
                 const std::string& cache_dir, bool cache, Progress progress) {
@@ -136,7 +138,9 @@ int command_run(const std::string& job_file, const std::string& out_dir, int thr
         settings.seed = seed;
         settings.models = models ? &*models : nullptr;
         if (telling(progress))
-            settings.progress = [](const std::string& what) { std::cerr << "partloc: " << what << std::endl; };
+            settings.progress = [](const std::string& what) {
+                std::cerr << "partloc: " << what << std::endl;
+            };
         result = run_job(job, settings);
     } catch (const std::invalid_argument& e) {
         return complain(job_file + ": " + e.what(), kBadInput);

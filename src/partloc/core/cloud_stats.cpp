@@ -81,7 +81,8 @@ Eigen::Vector3d estimate_viewpoint(const open3d::geometry::PointCloud& cloud, do
     const double inv = 1.0 / voxel;
     auto key = [&](const Eigen::Vector3d& p) {
         const auto q = [&](double v) {
-            return static_cast<std::uint64_t>(static_cast<std::int64_t>(std::floor(v * inv)) + (1 << 20)) & 0x1FFFFF;
+            return static_cast<std::uint64_t>(static_cast<std::int64_t>(std::floor(v * inv)) + (1 << 20)) &
+                   0x1FFFFF;
         };
         return (q(p.x()) << 42) | (q(p.y()) << 21) | q(p.z());
     };
@@ -99,9 +100,10 @@ Eigen::Vector3d estimate_viewpoint(const open3d::geometry::PointCloud& cloud, do
     for (const auto& [k, a] : cells)
         if (a.n >= min_count) sub->points_.push_back(a.sum / a.n);
     // The map's order is not fixed across library versions: sort, for a result that never varies.
-    std::sort(sub->points_.begin(), sub->points_.end(), [](const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
-        return std::lexicographical_compare(a.data(), a.data() + 3, b.data(), b.data() + 3);
-    });
+    std::sort(sub->points_.begin(), sub->points_.end(),
+              [](const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+                  return std::lexicographical_compare(a.data(), a.data() + 3, b.data(), b.data() + 3);
+              });
     if (sub->points_.size() < 30) return Eigen::Vector3d::Zero();
     sub = std::get<0>(sub->RemoveStatisticalOutliers(12, 2.0));
     if (sub->points_.size() < 30) return Eigen::Vector3d::Zero();

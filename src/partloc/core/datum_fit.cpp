@@ -188,8 +188,8 @@ std::vector<DatumResidual> evaluate_datums(const std::vector<Eigen::Vector3d>& m
                                            const Eigen::Isometry3d& T_located_nominal,
                                            const DatumFitSettings& st) {
     const Frame f = frame_of(datums);
-    return residuals(accumulate(merged, datums, T_located_nominal.inverse(), last_distance(datums, st), false, f),
-                     datums);
+    return residuals(
+        accumulate(merged, datums, T_located_nominal.inverse(), last_distance(datums, st), false, f), datums);
 }
 
 DatumFit fit_datums(const std::vector<Eigen::Vector3d>& merged, const std::vector<DatumSurface>& datums,

@@ -10,13 +10,13 @@
 namespace partloc {
 
 struct Extent {
-    std::size_t points = 0;          ///< how many were measured (finite ones)
+    std::size_t points = 0;                            ///< how many were measured (finite ones)
     Eigen::Vector3d center = Eigen::Vector3d::Zero();  ///< mean of the points
-    double size = 0.0;               ///< the largest standard deviation along a principal axis (length)
-    double width = 0.0;              ///< the middle one: 0 for collinear points
-    double thickness = 0.0;          ///< the smallest one: 0 for planar points
-    double max_abs = 0.0;            ///< the largest absolute coordinate
-    double diagonal = 0.0;           ///< of the axis-aligned bounding box
+    double size = 0.0;       ///< the largest standard deviation along a principal axis (length)
+    double width = 0.0;      ///< the middle one: 0 for collinear points
+    double thickness = 0.0;  ///< the smallest one: 0 for planar points
+    double max_abs = 0.0;    ///< the largest absolute coordinate
+    double diagonal = 0.0;   ///< of the axis-aligned bounding box
     /// 0 (one point, or all identical), 1 (on a line), 2 (in a plane) or 3: a direction counts when its
     /// spread is more than `relative_tolerance` (1e-6) of the largest.
     int rank = 0;

@@ -77,7 +77,8 @@ double rotation_angle_deg(const Eigen::Matrix3d& R) {
 }
 
 PoseError pose_error(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b) {
-    return {(a.translation() - b.translation()).norm(), rotation_angle_deg(a.linear().transpose() * b.linear())};
+    return {(a.translation() - b.translation()).norm(),
+            rotation_angle_deg(a.linear().transpose() * b.linear())};
 }
 
 Eigen::Matrix3d skew(const Eigen::Vector3d& v) {

@@ -55,7 +55,8 @@ Normal accumulate(const std::vector<Eigen::Vector3d>& source, const Surface& tar
                 if (found < 1) continue;
                 int k = -1;
                 double r = 0.0;
-                const Eigen::Vector3d np = normals ? Eigen::Vector3d(T.linear() * (*normals)[i]) : Eigen::Vector3d::Zero();
+                const Eigen::Vector3d np =
+                    normals ? Eigen::Vector3d(T.linear() * (*normals)[i]) : Eigen::Vector3d::Zero();
                 for (int j = 0; j < found; ++j) {
                     if (normals && std::abs(np.dot(target.normals[idx[j]])) < min_cos) continue;
                     const double rj = (p - target.points[idx[j]]).dot(target.normals[idx[j]]);

@@ -17,7 +17,7 @@ namespace partloc {
 struct IcpSettings {
     std::vector<double> max_distances;  ///< correspondence distance per stage, decreasing (job units)
     int max_iterations = 30;            ///< per stage
-    double min_step = 1e-5;             ///< stop a stage when the update is smaller (radians, job units/diameter)
+    double min_step = 1e-5;  ///< stop a stage when the update is smaller (radians, job units/diameter)
     std::size_t min_correspondences = 12;
     /// With source normals: a sample is a correspondence only if its normal is within this angle of the
     /// point's. At an open surface's edge (a datum face meeting a face that is not a reference), points on
@@ -35,8 +35,8 @@ struct IcpResult {
     Eigen::Isometry3d T_target_source = Eigen::Isometry3d::Identity();
     bool converged = false;
     int iterations = 0;
-    std::size_t inliers = 0;   ///< correspondences within the last stage's distance
-    double rmse = 0.0;         ///< RMS point-to-plane residual of the inliers (job units)
+    std::size_t inliers = 0;  ///< correspondences within the last stage's distance
+    double rmse = 0.0;        ///< RMS point-to-plane residual of the inliers (job units)
     /// Sum of J J^T over the inliers, J = [p x n; n] in the target frame (twist order [w, v]).
     /// Divide by the noise variance for the information matrix of T_target_source.
     Matrix6d JtJ = Matrix6d::Zero();

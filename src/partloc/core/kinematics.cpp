@@ -23,7 +23,8 @@ Eigen::Isometry3d Machine::motion(const std::vector<std::string>& chain, const A
     Eigen::Isometry3d M = Eigen::Isometry3d::Identity();
     for (const auto& name : chain) {
         const Axis* axis = find(name);
-        if (!axis) throw std::invalid_argument("moves_with names axis '" + name + "' that machine.axes lacks");
+        if (!axis)
+            throw std::invalid_argument("moves_with names axis '" + name + "' that machine.axes lacks");
         const auto it = q.find(name);
         M = M * axis->motion(it == q.end() ? 0.0 : it->second);
     }

@@ -1,15 +1,13 @@
 #include "partloc/core/localize.hpp"
 
-#include <optional>
-
-#include <Eigen/Eigenvalues>
-
 #include <open3d/geometry/KDTreeSearchParam.h>
 
+#include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <limits>
+#include <optional>
 #include <stdexcept>
 
 #include "partloc/core/icp.hpp"
@@ -67,7 +65,8 @@ PreparedScan prepare_scan(const open3d::geometry::PointCloud& points, const Scal
 }
 
 PreparedModel prepare_model(const std::string& name, const open3d::geometry::TriangleMesh* mesh,
-                            const open3d::geometry::PointCloud* points, double dense_spacing, double sampling) {
+                            const open3d::geometry::PointCloud* points, double dense_spacing,
+                            double sampling) {
     PreparedModel m;
     m.name = name;
     m.sampling = sampling;
@@ -137,7 +136,8 @@ std::vector<Eigen::Vector3d> points_near(const open3d::geometry::PointCloud& clo
     return out;
 }
 
-std::vector<Eigen::Vector3d> points_near(const PreparedScan& scan, const Eigen::Vector3d& centre, double radius) {
+std::vector<Eigen::Vector3d> points_near(const PreparedScan& scan, const Eigen::Vector3d& centre,
+                                         double radius) {
     return points_near(*scan.cloud, *scan.grid, centre, radius);
 }
 
@@ -175,8 +175,9 @@ bool near_surface(const Surface& surface, const Eigen::Isometry3d& T_surface_pts
     return surface.nearest(T_surface_pts * p, &d2, distance) >= 0;
 }
 
-std::vector<Eigen::Vector3d> points_near_surface(const std::vector<Eigen::Vector3d>& pts, const Surface& surface,
-                                                const Eigen::Isometry3d& T_surface_pts, double distance) {
+std::vector<Eigen::Vector3d> points_near_surface(const std::vector<Eigen::Vector3d>& pts,
+                                                 const Surface& surface,
+                                                 const Eigen::Isometry3d& T_surface_pts, double distance) {
     std::vector<Eigen::Vector3d> out;
     out.reserve(pts.size());
     for (const auto& p : pts)
@@ -190,7 +191,6 @@ std::vector<Eigen::Vector3d> subsample(const std::vector<Eigen::Vector3d>& v, st
     for (std::size_t k = 0; k < v.size(); k += stride) out.push_back(v[k]);
     return out;
 }
-
 
 FiducialFit judge(const PreparedModel& model, const Eigen::Isometry3d& T_scan_model, const Verification& v,
                   const Thresholds& t, const LocalizeSettings& st) {
@@ -211,15 +211,20 @@ FiducialFit judge(const PreparedModel& model, const Eigen::Isometry3d& T_scan_mo
     if (v.inliers < st.min_inliers)
         f.reason = fmt("too few points on the fiducial (%.0f, needs %.0f)", v.inliers, st.min_inliers);
     else if (v.conditioning < st.min_conditioning)
-        f.reason = fmt("seen only as a plane or an edge: the fit leaves a direction free (conditioning %.4f, "
-                       "needs %.3f)", v.conditioning, st.min_conditioning);
+        f.reason =
+            fmt("seen only as a plane or an edge: the fit leaves a direction free (conditioning %.4f, "
+                "needs %.3f)",
+                v.conditioning, st.min_conditioning);
     else if (v.violation > st.max_violation)
-        f.reason = fmt("the scan contradicts %.0f%% of the fiducial's surface: seen through it or material "
-                       "just in front of it (at most %.0f%%)",
-                       100 * v.violation, 100 * st.max_violation);
+        f.reason =
+            fmt("the scan contradicts %.0f%% of the fiducial's surface: seen through it or material "
+                "just in front of it (at most %.0f%%)",
+                100 * v.violation, 100 * st.max_violation);
     else if (f.overflow > st.max_overflow)
-        f.reason = fmt("the scanned surfaces run on past the fiducial's edges (%.0f%% of its points; at most "
-                       "%.0f%%): something larger is there", 100 * f.overflow, 100 * st.max_overflow);
+        f.reason =
+            fmt("the scanned surfaces run on past the fiducial's edges (%.0f%% of its points; at most "
+                "%.0f%%): something larger is there",
+                100 * f.overflow, 100 * st.max_overflow);
     else if (v.coverage < st.min_coverage)
         f.reason = fmt("only %.0f%% of the fiducial's visible surface observed (needs %.0f%%)",
                        100 * v.coverage, 100 * st.min_coverage);
@@ -231,12 +236,11 @@ FiducialFit judge(const PreparedModel& model, const Eigen::Isometry3d& T_scan_mo
 
 }  // namespace
 
-
 FiducialFit evaluate_model(const PreparedScan& scan, const PreparedModel& model,
                            const Eigen::Isometry3d& T_scan_model, const LocalizeSettings& st) {
     const Thresholds t = thresholds(scan, model);
-    const auto local =
-        points_near(scan, T_scan_model * model.dense.center, model.dense.diameter / 2.0 + 2.0 * model.sampling);
+    const auto local = points_near(scan, T_scan_model * model.dense.center,
+                                   model.dense.diameter / 2.0 + 2.0 * model.sampling);
     const Verification v = verify_pose(local, model.dense, T_scan_model.inverse(), scan.viewpoint, t.vs);
     return judge(model, T_scan_model, v, t, st);
 }
@@ -247,7 +251,8 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
 }
 
 std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const PreparedModel& model,
-                                        const LocalizeSettings& st, const std::vector<PoseCandidate>& candidates) {
+                                        const LocalizeSettings& st,
+                                        const std::vector<PoseCandidate>& candidates) {
     const Thresholds t = thresholds(scan, model);
     const double s = model.sampling;
 
@@ -298,8 +303,9 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
         // does at full density (with the full bins, coverage on 1500 points was about 0.3 for every
         // candidate, right or wrong, and could not rank them).
         VerifySettings q = quick;
-        q.bin_size = quick.bin_size *
-                     std::sqrt(std::max(1.0, static_cast<double>(local_count) / static_cast<double>(sub.size())));
+        q.bin_size =
+            quick.bin_size *
+            std::sqrt(std::max(1.0, static_cast<double>(local_count) / static_cast<double>(sub.size())));
         const Verification v = verify_pose(sub, model.dense, c.T_model_scan, scan.viewpoint, q);
         const FiducialFit f = judge(model, c.T_model_scan.inverse(), v, t, st);
         // Evidence against a pose counts against it in the ranking too, not only past a threshold.
@@ -327,9 +333,9 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
         const auto& c = screened[i];
         // Past the first, a candidate whose quick verification found five times the evidence against that a
         // fit may have is not fitted finely: of 570 candidates verified in the first ten cells of seeds
-        // 1500-1519 (git show 52c5702:bench/results/candidates_gate_1500.txt), the 107 accepted had at most 3.3 times before
-        // their fine fit; 96 others past the first had more than 5. The first stays, so that a fiducial's
-        // reason in the report is its best candidate's.
+        // 1500-1519 (git show 52c5702:bench/results/candidates_gate_1500.txt), the 107 accepted had at
+        // most 3.3 times before their fine fit; 96 others past the first had more than 5. The first stays, so
+        // that a fiducial's reason in the report is its best candidate's.
         if (i > 0 && c.against > 5.0) continue;
         const auto local_all = points_near(scan, c.centre, radius);
         // Down to a quarter of the sampling on a subsample, then every point at the noise's scale: a face
@@ -338,11 +344,12 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
             icp_point_to_plane(subsample(local_all, st.fine_points), model.dense, c.T_model_scan, fine);
         // The polish sees only the points near the surface after the fine fit (the rest cannot become
         // correspondences within the polish distance unless the pose moves by more than the fit's step), of
-        // at most st.polish_points around the candidate, taken by their order: it places one fiducial, which the
-        // scan's joint fit then refines on every point, and all of them cost 6.5 of 20 s on six scans of 2 M
-        // points (seed 106; 0.53 s at 250 k).
-        const auto near = points_near_surface(subsample(local_all, st.polish_points), model.dense,
-                                              icp.T_target_source, 2.0 * polish.max_distances.back() + 0.1 * s);
+        // at most st.polish_points around the candidate, taken by their order: it places one fiducial, which
+        // the scan's joint fit then refines on every point, and all of them cost 6.5 of 20 s on six scans of
+        // 2 M points (seed 106; 0.53 s at 250 k).
+        const auto near =
+            points_near_surface(subsample(local_all, st.polish_points), model.dense, icp.T_target_source,
+                                2.0 * polish.max_distances.back() + 0.1 * s);
         const IcpResult last = icp_point_to_plane(near, model.dense, icp.T_target_source, polish);
         const Eigen::Isometry3d T_ms = last.T_target_source;
         // Verify on the points around the refined pose: the fit may have moved by up to the sampling.
@@ -368,9 +375,9 @@ Surface make_pose_target(const std::vector<const PreparedModel*>& models,
 }
 
 ScanPoseFit fit_scan_pose(const PreparedScan& scan, const std::vector<const PreparedModel*>& models,
-                          const std::vector<Eigen::Isometry3d>& T_machine_model, const Eigen::Isometry3d& init,
-                          const LocalizeSettings& st, double start_distance, const Surface* target,
-                          std::size_t max_points_per_model) {
+                          const std::vector<Eigen::Isometry3d>& T_machine_model,
+                          const Eigen::Isometry3d& init, const LocalizeSettings& st, double start_distance,
+                          const Surface* target, std::size_t max_points_per_model) {
     ScanPoseFit out;
     out.T_machine_scan = init;
     if (models.empty() || models.size() != T_machine_model.size()) return out;
@@ -465,8 +472,9 @@ FiducialFit localize_model(const PreparedScan& scan, const PreparedModel& model,
         if ((e.translation > 2.0 * model.dense.spacing || e.rotation_deg > 2.0) &&
             support(f) >= st.ambiguity * support(best)) {
             best.valid = false;
-            best.reason = fmt("ambiguous: two poses %.3g apart fit about equally well (%.0f%% of the support)",
-                              e.translation, 100.0 * support(f) / support(best));
+            best.reason =
+                fmt("ambiguous: two poses %.3g apart fit about equally well (%.0f%% of the support)",
+                    e.translation, 100.0 * support(f) / support(best));
             break;
         }
     }

@@ -37,7 +37,7 @@ struct PreparedScan {
     std::shared_ptr<RadiusGrid> sparse_grid;
     std::size_t sparse_stride = 1;
     std::vector<Eigen::Vector3d> coarse_points, coarse_normals;  ///< at the PPF sampling
-    Eigen::Vector3d viewpoint = Eigen::Vector3d::Zero();           ///< scanner position, scan frame
+    Eigen::Vector3d viewpoint = Eigen::Vector3d::Zero();         ///< scanner position, scan frame
     Scale scale;
     /// Normals (either sign) of cloud's points for the scan's pose fits (fit_scan_pose), each computed the
     /// first time a fit takes its point and kept: the hypotheses' fits, the joint fit and the fiducials' own
@@ -60,15 +60,16 @@ PreparedScan prepare_scan(const open3d::geometry::PointCloud& points, const Scal
 /// A fiducial (or any rigid model) ready for fitting: dense oriented samples and the PPF table.
 struct PreparedModel {
     std::string name;
-    Surface dense;                 ///< for the fine fit and the verification
-    std::shared_ptr<PpfModel> ppf; ///< for the global fit
-    double sampling = 0.0;         ///< PPF sampling (job units)
+    Surface dense;                  ///< for the fine fit and the verification
+    std::shared_ptr<PpfModel> ppf;  ///< for the global fit
+    double sampling = 0.0;          ///< PPF sampling (job units)
 };
 
 /// Samples the model (a mesh by Poisson disk at `dense_spacing`, or points with normals as they are) and
 /// builds its PPF table at `sampling`.
 PreparedModel prepare_model(const std::string& name, const open3d::geometry::TriangleMesh* mesh,
-                            const open3d::geometry::PointCloud* points, double dense_spacing, double sampling);
+                            const open3d::geometry::PointCloud* points, double dense_spacing,
+                            double sampling);
 
 /// The outcome of fitting one fiducial to one scan.
 struct FiducialFit {
@@ -76,17 +77,17 @@ struct FiducialFit {
     bool valid = false;
     std::string reason;  ///< why it is not valid; empty when valid
     Eigen::Isometry3d T_scan_fiducial = Eigen::Isometry3d::Identity();
-    double rmse = 0.0;          ///< RMS point-to-surface distance of the inliers (job units)
-    double coverage = 0.0;      ///< fraction of the model surface facing the scanner that was observed
-    double violation = 0.0;     ///< fraction of the observed model surface the scanner saw through
-    double conditioning = 0.0;  ///< smallest eigenvalue of the normalised fit information, 0..1/3
-    double spread = 0.0;        ///< smallest eigenvalue of the inliers' mean n n^T, 0..1/3
-    double score = 0.0;         ///< coverage * (1 - violation)
-    std::size_t inliers = 0;    ///< scan points on the model surface
-    double overflow = 0.0;      ///< points continuing the model's facing faces past its edges, per inlier
+    double rmse = 0.0;             ///< RMS point-to-surface distance of the inliers (job units)
+    double coverage = 0.0;         ///< fraction of the model surface facing the scanner that was observed
+    double violation = 0.0;        ///< fraction of the observed model surface the scanner saw through
+    double conditioning = 0.0;     ///< smallest eigenvalue of the normalised fit information, 0..1/3
+    double spread = 0.0;           ///< smallest eigenvalue of the inliers' mean n n^T, 0..1/3
+    double score = 0.0;            ///< coverage * (1 - violation)
+    std::size_t inliers = 0;       ///< scan points on the model surface
+    double overflow = 0.0;         ///< points continuing the model's facing faces past its edges, per inlier
     std::size_t observed = 0;      ///< ray bins of model surface observed (see Verification)
     std::size_t seen_through = 0;  ///< ray bins of model surface the scanner saw through
-    int candidates = 0;         ///< global-fit candidates examined
+    int candidates = 0;            ///< global-fit candidates examined
     /// False: not searched on its own, but judged where another fiducial's fit put the scanner (the scan's
     /// placement needed no search of it).
     bool searched = true;
@@ -96,15 +97,15 @@ struct FiducialFit {
 
 struct LocalizeSettings {
     int verified = 3;  ///< of the global fit's candidates, the best screened refined finely and verified
-    double min_coverage = 0.30;     ///< of the model surface facing the scanner
-    double max_violation = 0.05;    ///< of nearby points seen inside the model
-    double min_conditioning = 0.003; ///< a plane alone gives 0; a corner about 0.1-0.3
-    double max_overflow = 0.04;      ///< points continuing the model's faces past its edges, per inlier
+    double min_coverage = 0.30;       ///< of the model surface facing the scanner
+    double max_violation = 0.05;      ///< of nearby points seen inside the model
+    double min_conditioning = 0.003;  ///< a plane alone gives 0; a corner about 0.1-0.3
+    double max_overflow = 0.04;       ///< points continuing the model's faces past its edges, per inlier
     std::size_t min_inliers = 100;
     /// RMS residual at most this fraction of the inlier distance (3 noise sigmas and the model's sampling):
     /// about 1/3 for Gaussian noise, 0.58 for residuals spread evenly, as a wrong fit's are.
     double max_rmse = 0.5;
-    double ambiguity = 0.8;         ///< a distinct pose with this fraction of the best inliers: ambiguous
+    double ambiguity = 0.8;  ///< a distinct pose with this fraction of the best inliers: ambiguous
     /// Points around a candidate that its screening fit and its fine fit take, and its polish at most (before
     /// those far from the surface are dropped): a thousand or two fix a pose far inside the checks above.
     std::size_t screen_points = 1500;
@@ -136,7 +137,8 @@ struct ScanPoseFit {
     Matrix6d JtJ = Matrix6d::Zero();
     double rmse = 0.0;
     std::size_t inliers = 0;
-    std::vector<std::size_t> points;  ///< scan points taken near each fiducial's surface, in the models' order
+    std::vector<std::size_t>
+        points;  ///< scan points taken near each fiducial's surface, in the models' order
     /// Each model's share of JtJ (the same frame and twist), in the models' order: how much each fiducial
     /// holds each direction of the fit, to carry a fiducial's probing error into the scan's pose.
     std::vector<Matrix6d> JtJ_per_model;
@@ -154,12 +156,14 @@ Surface make_pose_target(const std::vector<const PreparedModel*>& models,
 /// `max_points_per_model`: when > 0, the points taken near each fiducial are thinned (every k-th) to at most
 /// this many, for a fit that only places or judges a hypothesis; its JtJ is then that of the subsample.
 ScanPoseFit fit_scan_pose(const PreparedScan& scan, const std::vector<const PreparedModel*>& models,
-                          const std::vector<Eigen::Isometry3d>& T_machine_model, const Eigen::Isometry3d& init,
-                          const LocalizeSettings& settings, double start_distance = 0.0,
-                          const Surface* target = nullptr, std::size_t max_points_per_model = 0);
+                          const std::vector<Eigen::Isometry3d>& T_machine_model,
+                          const Eigen::Isometry3d& init, const LocalizeSettings& settings,
+                          double start_distance = 0.0, const Surface* target = nullptr,
+                          std::size_t max_points_per_model = 0);
 
 /// Fits `model` to `scan`: global fit, fine fit of the best candidates, verification, decision; a second
 /// distinct pose with nearly the best support makes the answer ambiguous, and it is rejected.
-FiducialFit localize_model(const PreparedScan& scan, const PreparedModel& model, const LocalizeSettings& settings);
+FiducialFit localize_model(const PreparedScan& scan, const PreparedModel& model,
+                           const LocalizeSettings& settings);
 
 }  // namespace partloc

@@ -10,7 +10,8 @@ namespace partloc {
 
 NearestMap::NearestMap(const std::vector<Eigen::Vector3d>& points, double cell, double reach)
     : reach_(reach) {
-    if (!(cell > 0) || !(reach >= 0)) throw std::invalid_argument("NearestMap: cell must be > 0 and reach >= 0");
+    if (!(cell > 0) || !(reach >= 0))
+        throw std::invalid_argument("NearestMap: cell must be > 0 and reach >= 0");
     if (points.empty()) return;
     Eigen::AlignedBox3d box;
     for (const auto& p : points) box.extend(p);

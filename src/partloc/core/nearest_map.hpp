@@ -17,11 +17,10 @@
 
 #include "partloc/core/sample_grid.hpp"
 
-
 namespace partloc {
 
 class NearestMap {
-public:
+  public:
     /// Cells of size `cell` over the samples' bounding box grown by `reach`; a cell whose centre has no
     /// sample within `reach` answers -1. The cell grows if the box would need more than 16 million cells.
     NearestMap(const std::vector<Eigen::Vector3d>& points, double cell, double reach);

@@ -37,8 +37,8 @@ RadiusGrid normals_grid(const std::vector<Eigen::Vector3d>& points, double radiu
     return radius > 0 ? RadiusGrid(points, radius) : RadiusGrid();
 }
 
-std::vector<Eigen::Vector3d> estimate_normals(const std::vector<Eigen::Vector3d>& points, double radius, int max_nn,
-                                              const std::vector<std::size_t>* at) {
+std::vector<Eigen::Vector3d> estimate_normals(const std::vector<Eigen::Vector3d>& points, double radius,
+                                              int max_nn, const std::vector<std::size_t>* at) {
     if (points.size() < 3 || !(radius > 0) || max_nn < 3)
         return std::vector<Eigen::Vector3d>(at ? at->size() : points.size(), Eigen::Vector3d::UnitZ());
     return estimate_normals(points, normals_grid(points, radius), radius, max_nn, at);
@@ -57,25 +57,30 @@ std::vector<Eigen::Vector3d> estimate_normals(const std::vector<Eigen::Vector3d>
         std::vector<std::pair<double, int>> by_distance;
     };
     tbb::enumerable_thread_specific<Buffers> buffers;
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 256), [&](const tbb::blocked_range<std::size_t>& range) {
-        Buffers& b = buffers.local();
-        for (std::size_t i = range.begin(); i != range.end(); ++i) {
-            const Eigen::Vector3d& p = points[at ? (*at)[i] : i];
-            grid.within(p, radius, b.idx, false);
-            if (b.idx.size() > static_cast<std::size_t>(max_nn)) {
-                // The max_nn nearest; which of several at the same distance is taken does not matter here.
-                b.by_distance.clear();
-                for (int j : b.idx) b.by_distance.emplace_back((points[j] - p).squaredNorm(), j);
-                std::nth_element(b.by_distance.begin(), b.by_distance.begin() + (max_nn - 1), b.by_distance.end());
-                b.idx.resize(max_nn);
-                for (int k = 0; k < max_nn; ++k) b.idx[k] = b.by_distance[k].second;
-            }
-            // The sum below in a fixed order, whatever order nth_element or the grid's cells left.
-            std::sort(b.idx.begin(), b.idx.end());
-            const Eigen::Vector3d normal = pca_normal(points, b.idx);
-            if (normal.squaredNorm() > 0) out[i] = normal;
-        }
-    });
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 256),
+                      [&](const tbb::blocked_range<std::size_t>& range) {
+                          Buffers& b = buffers.local();
+                          for (std::size_t i = range.begin(); i != range.end(); ++i) {
+                              const Eigen::Vector3d& p = points[at ? (*at)[i] : i];
+                              grid.within(p, radius, b.idx, false);
+                              if (b.idx.size() > static_cast<std::size_t>(max_nn)) {
+                                  // The max_nn nearest; which of several at the same distance is taken does
+                                  // not matter here.
+                                  b.by_distance.clear();
+                                  for (int j : b.idx)
+                                      b.by_distance.emplace_back((points[j] - p).squaredNorm(), j);
+                                  std::nth_element(b.by_distance.begin(),
+                                                   b.by_distance.begin() + (max_nn - 1), b.by_distance.end());
+                                  b.idx.resize(max_nn);
+                                  for (int k = 0; k < max_nn; ++k) b.idx[k] = b.by_distance[k].second;
+                              }
+                              // The sum below in a fixed order, whatever order nth_element or the grid's
+                              // cells left.
+                              std::sort(b.idx.begin(), b.idx.end());
+                              const Eigen::Vector3d normal = pca_normal(points, b.idx);
+                              if (normal.squaredNorm() > 0) out[i] = normal;
+                          }
+                      });
     return out;
 }
 

@@ -19,8 +19,8 @@ namespace partloc {
 /// Unit normals, either sign, of points[at[i]] (of every point when `at` is null), each from its up to
 /// `max_nn` nearest points (itself included) closer than `radius`; (0, 0, 1) where fewer than three are, as
 /// Open3D gives. Deterministic for any number of threads.
-std::vector<Eigen::Vector3d> estimate_normals(const std::vector<Eigen::Vector3d>& points, double radius, int max_nn,
-                                              const std::vector<std::size_t>* at = nullptr);
+std::vector<Eigen::Vector3d> estimate_normals(const std::vector<Eigen::Vector3d>& points, double radius,
+                                              int max_nn, const std::vector<std::size_t>* at = nullptr);
 
 class RadiusGrid;
 /// The neighbour grid estimate_normals builds over `points` for `radius`: for a caller that asks for the

@@ -25,8 +25,9 @@ double fast_atan2(double y, double x) {
     if (mx == 0.0) return 0.0;
     const double a = std::min(ax, ay) / mx;
     const double s = a * a;
-    double r = ((((-0.0117212 * s + 0.05265332) * s - 0.11643287) * s + 0.19354346) * s - 0.33262347) * s * a +
-               0.99997726 * a;
+    double r =
+        ((((-0.0117212 * s + 0.05265332) * s - 0.11643287) * s + 0.19354346) * s - 0.33262347) * s * a +
+        0.99997726 * a;
     if (ay > ax) r = M_PI_2 - r;
     if (x < 0) r = M_PI - r;
     return y < 0 ? -r : r;
@@ -41,7 +42,7 @@ double fast_atan2(double y, double x) {
 std::uint32_t pair_turn(const Eigen::Isometry3d& T_g, const Eigen::Vector3d& p2) {
     const Eigen::Vector3d v = T_g * p2;
     double a = fast_atan2(v.z(), v.y()) / kTwoPi;  // (-1/2, 1/2]
-    a -= std::floor(a);                             // [0, 1)
+    a -= std::floor(a);                            // [0, 1)
     return static_cast<std::uint32_t>(std::min(a * 4294967296.0, 4294967295.0));
 }
 }  // namespace
@@ -62,7 +63,8 @@ PpfFeatures::PpfFeatures(const PpfSettings& s) : settings_(s) {
         slot.edge = -2.0;
         slot.bin = 0;
         for (double e : edges_) {
-            if (hi <= e) ++slot.bin;  // every cosine in the slot is below this edge
+            if (hi <= e)
+                ++slot.bin;  // every cosine in the slot is below this edge
             else if (lo <= e) {
                 if (slot.edge != -2.0) {  // two edges in one slot: no table
                     slots_.clear();
@@ -86,8 +88,10 @@ int PpfFeatures::angle_bin(double c) const {
     int lo = 0, hi = static_cast<int>(edges_.size());
     while (lo < hi) {
         const int mid = (lo + hi) / 2;
-        if (c <= edges_[mid]) lo = mid + 1;
-        else hi = mid;
+        if (c <= edges_[mid])
+            lo = mid + 1;
+        else
+            hi = mid;
     }
     return lo;
 }
@@ -204,7 +208,8 @@ void PpfModel::set_extent() {
     const double A = settings_.angle_bins;
     const double bins = std::ceil(diameter_ / settings_.sampling) + 2;
     if (!std::isfinite(diameter_) || !(settings_.sampling > 0) || !(bins * A * A * A < (1 << 28)))
-        throw std::invalid_argument("PPF model: the model is " + std::to_string(diameter_ / settings_.sampling) +
+        throw std::invalid_argument("PPF model: the model is " +
+                                    std::to_string(diameter_ / settings_.sampling) +
                                     " sampling steps across, more than a feature table can hold (a model far "
                                     "larger than the point spacing: a wrong unit?)");
     distance_bins_ = static_cast<int>(bins);
@@ -312,7 +317,8 @@ std::vector<std::vector<PoseCandidate>> ppf_detect(const std::vector<const PpfMo
                 int db = 0;
                 const int ak = features.key(pr, nr, scene_points[j], scene_normals[j], &db);
                 if (ak < 0) continue;
-                bool have_turn = false;  // the scene pair's angle, computed when some model has entries for it
+                bool have_turn =
+                    false;  // the scene pair's angle, computed when some model has entries for it
                 std::uint32_t turn_s = 0;
                 for (std::size_t m = 0; m < M; ++m) {
                     const PpfModel& model = *models[m];
@@ -348,7 +354,8 @@ std::vector<std::vector<PoseCandidate>> ppf_detect(const std::vector<const PpfMo
                 const std::size_t bi = best[m].second;
                 const std::size_t mi = bi / nalpha;
                 const double alpha = (static_cast<double>(bi % nalpha) + 0.5) / nalpha * kTwoPi;
-                const Eigen::Isometry3d T_mg = ppf_align_to_x(models[m]->points()[mi], models[m]->normals()[mi]);
+                const Eigen::Isometry3d T_mg =
+                    ppf_align_to_x(models[m]->points()[mi], models[m]->normals()[mi]);
                 PoseCandidate c;
                 c.T_scene_model = T_sg.inverse() * Eigen::AngleAxisd(alpha, Eigen::Vector3d::UnitX()) * T_mg;
                 c.votes = best[m].first;
@@ -395,7 +402,8 @@ std::vector<PoseCandidate> cluster_votes(const PpfModel& model, const std::vecto
         if (!joined) clusters.push_back({c, c.votes});
         if (clusters.size() > 2000) break;
     }
-    std::stable_sort(clusters.begin(), clusters.end(), [](const auto& a, const auto& b) { return a.votes > b.votes; });
+    std::stable_sort(clusters.begin(), clusters.end(),
+                     [](const auto& a, const auto& b) { return a.votes > b.votes; });
     // Spread the candidates over the scene: a large structure that resembles the model (a big block with a
     // step) casts many votes for many slightly different poses and would fill the list by itself, crowding
     // out a smaller, partly hidden true instance.

@@ -11,9 +11,9 @@
 namespace partloc {
 
 struct PpfSettings {
-    double sampling = 0.0;      ///< distance step and point sampling (job units); required > 0
-    int angle_bins = 15;        ///< bins over [0, pi] for the three feature angles (12 degrees each)
-    int alpha_bins = 30;        ///< bins over 2 pi for the rotation about the normal (12 degrees each)
+    double sampling = 0.0;  ///< distance step and point sampling (job units); required > 0
+    int angle_bins = 15;    ///< bins over [0, pi] for the three feature angles (12 degrees each)
+    int alpha_bins = 30;    ///< bins over 2 pi for the rotation about the normal (12 degrees each)
     /// Every k-th scene point is a reference point: every 16th registers as many scans as every 8th at half
     /// the votes, the largest part of a scan's time (docs/history.md, PPF settings).
     int reference_stride = 16;
@@ -23,11 +23,12 @@ struct PpfSettings {
     /// Every k-th scene point (by index) is a partner of each reference point; thinning them lost scans that
     /// every point keeps (docs/history.md, PPF settings).
     int partner_stride = 1;
-    double coplanar_deg = 8.0;  ///< a pair whose normals and joining line are within this of coplanar is skipped
-    /// Pose clusters returned, most votes first; each is screened by a coarse fit (a third of a scan's time at
-    /// 32, which registered no more scans than 16).
+    double coplanar_deg =
+        8.0;  ///< a pair whose normals and joining line are within this of coplanar is skipped
+    /// Pose clusters returned, most votes first; each is screened by a coarse fit (a third of a scan's time
+    /// at 32, which registered no more scans than 16).
     int max_candidates = 16;
-    int per_location = 2;       ///< at most this many candidates within a quarter diameter of each other
+    int per_location = 2;  ///< at most this many candidates within a quarter diameter of each other
     /// Features shared by more model pairs than this x the mean cast no votes: common features (planes) cast
     /// most of the votes and tell little (docs/history.md, PPF settings).
     double bucket_cap = 2.0;
@@ -35,10 +36,11 @@ struct PpfSettings {
     double cluster_distance = 0.0;       ///< (job units); 0: 2 * sampling
 };
 
-/// The pair feature of Drost et al.: distance and three angles, binned. Angle bins come from comparing cosines
-/// with the bins' edges (no inverse trigonometry), so that one scene pair is binned once for every model.
+/// The pair feature of Drost et al.: distance and three angles, binned. Angle bins come from comparing
+/// cosines with the bins' edges (no inverse trigonometry), so that one scene pair is binned once for every
+/// model.
 class PpfFeatures {
-public:
+  public:
     explicit PpfFeatures(const PpfSettings& settings);
     /// Angle part of the key of an oriented pair (unit normals), and its distance bin; -1 for a pair that is
     /// skipped (closer than the sampling, or on one plane).
@@ -46,7 +48,7 @@ public:
             const Eigen::Vector3d& n2, int* distance_bin) const;
     int angle_bin(double cosine) const;
 
-private:
+  private:
     PpfSettings settings_;
     std::vector<double> edges_;
     double sin_c_ = 0.0, cos_c_ = 1.0;
@@ -62,7 +64,7 @@ private:
 
 /// The model's pair features, hashed. Built once per model, searched from many threads.
 class PpfModel {
-public:
+  public:
     /// points, normals: the model sampled at about settings.sampling, unit normals, in the model frame.
     PpfModel(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& normals,
              const PpfSettings& settings);

@@ -41,13 +41,16 @@ void ascending(std::vector<int>& idx, std::size_t n) {
 
 }  // namespace
 
-void RadiusGrid::within(const Eigen::Vector3d& centre, double radius, std::vector<int>& out, bool sorted) const {
+void RadiusGrid::within(const Eigen::Vector3d& centre, double radius, std::vector<int>& out,
+                        bool sorted) const {
     out.clear();
     if (points_.empty() || !(radius > 0)) return;
     const double r2 = radius * radius;
     const Eigen::Vector3d lo = (centre.array() - radius - frame_.origin.array()) / frame_.cell;
     const Eigen::Vector3d hi = (centre.array() + radius - frame_.origin.array()) / frame_.cell;
-    if (hi.x() < 0 || hi.y() < 0 || hi.z() < 0 || lo.x() >= frame_.nx || lo.y() >= frame_.ny || lo.z() >= frame_.nz) return;
+    if (hi.x() < 0 || hi.y() < 0 || hi.z() < 0 || lo.x() >= frame_.nx || lo.y() >= frame_.ny ||
+        lo.z() >= frame_.nz)
+        return;
     // The bounds clamped as doubles before the cast (a ball far outside the grid overflowed int, undefined):
     // the same cells as before for every ball, and an empty range for one that misses the grid or is NaN.
     const auto first = [](double v, int n) {
@@ -98,7 +101,8 @@ void RadiusGrid::within(const Eigen::Vector3d& centre, double radius, std::vecto
                 // points near the sphere).
                 const bool inside = fz2 + fy2 + fx2 < r2 * (1.0 - 1e-9);
                 for (std::uint32_t j = a; j < b; ++j)
-                    if (inside || (points_[j] - centre).squaredNorm() < r2) out.push_back(static_cast<int>(index_[j]));
+                    if (inside || (points_[j] - centre).squaredNorm() < r2)
+                        out.push_back(static_cast<int>(index_[j]));
             }
         }
     }

@@ -14,7 +14,7 @@
 namespace partloc {
 
 class RadiusGrid {
-public:
+  public:
     RadiusGrid() = default;
     /// `cell`: about a tenth of the radii to be asked (any positive value gives exact answers); it grows when
     /// the points' box would need more than about two million cells.
@@ -22,11 +22,12 @@ public:
 
     /// Indices of the points closer than `radius` to `centre` (strictly), ascending, into `out`; unsorted
     /// (in the grid's order, the same on every call) where the caller does not need them ascending.
-    void within(const Eigen::Vector3d& centre, double radius, std::vector<int>& out, bool sorted = true) const;
+    void within(const Eigen::Vector3d& centre, double radius, std::vector<int>& out,
+                bool sorted = true) const;
 
     std::size_t size() const { return points_.size(); }
 
-private:
+  private:
     std::vector<Eigen::Vector3d> points_;  // in cell order
     std::vector<std::uint32_t> index_;     // their indices in the caller's array
     CellFrame frame_;

@@ -143,14 +143,13 @@ struct Search {
         std::vector<Disagreement> out;
         for (std::size_t k : in_view) {
             const PreparedModel& m = *models[k];
-            const ScanPoseFit own = fit_scan_pose(scan, {&m}, {poses[k]}, T, localize,
-                                                  settings.own_fit_start * m.sampling, nullptr,
-                                                  settings.hypothesis_points);
+            const ScanPoseFit own =
+                fit_scan_pose(scan, {&m}, {poses[k]}, T, localize, settings.own_fit_start * m.sampling,
+                              nullptr, settings.hypothesis_points);
             if (!own.valid) continue;
             const Eigen::Isometry3d D = own.T_machine_scan * T.inverse();
             const double shift = shift_at(D, centre_of(fiducials[k])), turn = rotation_angle_deg(D.linear());
-            const double turn_tol =
-                settings.own_fit_noise * noise / (0.5 * m.dense.diameter) * 180.0 / M_PI;
+            const double turn_tol = settings.own_fit_noise * noise / (0.5 * m.dense.diameter) * 180.0 / M_PI;
             if (shift > settings.own_fit_noise * noise || turn > turn_tol) out.push_back({k, shift, turn});
         }
         return out;
@@ -242,7 +241,8 @@ std::string rival_reason(const Hypothesis& top, const std::vector<Hypothesis>& h
         if (&h == &top || !h.refuted.empty()) continue;
         if (top.corroborated > 0 && h.corroborated == 0) continue;  // a lone fit does not outweigh two
         const PoseError e = pose_error(h.T_machine_scan, top.T_machine_scan);
-        if ((e.rotation_deg > settings.distinct_deg || e.translation > settings.distinct_distance * sampling) &&
+        if ((e.rotation_deg > settings.distinct_deg ||
+             e.translation > settings.distinct_distance * sampling) &&
             h.support >= localize.ambiguity * top.support)
             return "ambiguous: two placements of the scanner explain the scan about equally well" +
                    format(" (%.3g deg, %.3g apart)", e.rotation_deg, e.translation);
@@ -315,7 +315,8 @@ ScanRegistration register_scan(const PreparedScan& scan, const std::vector<Place
     if (std::string why = rival_reason(*top, search.hyps, fiducials, noise, localize, settings); !why.empty())
         return done(why);
     for (std::size_t g : top->contradicted)
-        r.warnings.push_back("fiducial " + fiducials[g].name + " is not where its probed pose puts it, while " +
+        r.warnings.push_back("fiducial " + fiducials[g].name +
+                             " is not where its probed pose puts it, while " +
                              std::to_string(top->explained.size()) +
                              " others agree: it moved or was probed wrong; left out of this scan's fit");
     // Every fiducial the winning hypothesis explains fixes the scan together. Each one's own fit must agree
@@ -340,7 +341,8 @@ ScanRegistration register_scan(const PreparedScan& scan, const std::vector<Place
             }
         } else if (!bad.empty()) {
             return done("fiducials " + names_of(fiducials, in_view) + " disagree" +
-                        format(" by up to %.3g", bad.front().shift) + " here: one of them moved or was probed wrong");
+                        format(" by up to %.3g", bad.front().shift) +
+                        " here: one of them moved or was probed wrong");
         }
     }
     r.valid = true;

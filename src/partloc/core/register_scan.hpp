@@ -1,9 +1,9 @@
 #pragma once
 // The scan's registration (paper §3.4.1, Eq. 2): every fiducial in view, as one rigid constellation. Each
-// candidate of each fiducial that passes its own checks is a hypothesis for where the scanner was; it predicts
-// every other fiducial from its probed pose, and the scan corroborates or contradicts each prediction. The
-// best hypothesis that nothing refutes, and that no other placement of like support rivals, registers the
-// scan; its pose is then fitted on every fiducial it explains at once.
+// candidate of each fiducial that passes its own checks is a hypothesis for where the scanner was; it
+// predicts every other fiducial from its probed pose, and the scan corroborates or contradicts each
+// prediction. The best hypothesis that nothing refutes, and that no other placement of like support rivals,
+// registers the scan; its pose is then fitted on every fiducial it explains at once.
 #include <Eigen/Geometry>
 #include <cstddef>
 #include <string>
@@ -39,9 +39,9 @@ struct RegistrationSettings {
     /// through and its violation exceeds `contradiction_violation` times LocalizeSettings::max_violation.
     std::size_t contradiction_bins = 20;
     double contradiction_violation = 4.0;
-    /// Two hypotheses from different fiducials corroborate each other when they turn the scanner apart by less
-    /// than `corroboration_deg` and move the source fiducial's centre by less than `corroboration_distance`
-    /// samplings.
+    /// Two hypotheses from different fiducials corroborate each other when they turn the scanner apart by
+    /// less than `corroboration_deg` and move the source fiducial's centre by less than
+    /// `corroboration_distance` samplings.
     double corroboration_deg = 2.0;
     double corroboration_distance = 2.0;
     /// Two placements are distinct (ambiguous when of like support) beyond `distinct_deg` or
@@ -52,8 +52,8 @@ struct RegistrationSettings {
     double rival_support = 0.5;
     /// Two corroborated sets of fiducials disagree beyond `disagreement_noise` noise sigmas at the fiducial.
     double disagreement_noise = 3.0;
-    /// A fiducial's own fit disagrees with the joint fit beyond `own_fit_noise` noise sigmas at its centre, or
-    /// the turn that moves its rim (half its diameter) that far; its own fit starts at `own_fit_start`
+    /// A fiducial's own fit disagrees with the joint fit beyond `own_fit_noise` noise sigmas at its centre,
+    /// or the turn that moves its rim (half its diameter) that far; its own fit starts at `own_fit_start`
     /// samplings.
     double own_fit_noise = 3.0;
     double own_fit_start = 0.5;
@@ -65,12 +65,12 @@ struct Hypothesis {
     FiducialFit source_fit;  ///< that candidate
     Eigen::Isometry3d T_machine_scan_initial = Eigen::Isometry3d::Identity();  ///< from the source alone
     Eigen::Isometry3d T_machine_scan = Eigen::Isometry3d::Identity();          ///< refined on every fiducial
-    double support = 0.0;                    ///< summed over the fiducials that pass where it puts them
-    std::vector<std::size_t> explained;      ///< fiducials that pass their checks where it puts them
-    std::vector<std::size_t> contradicted;   ///< fiducials the scan contradicts where it puts them
-    std::vector<FiducialFit> judged;         ///< every fiducial judged where it puts it, in their order
-    int corroborated = 0;                    ///< other fiducials' fits that put the scanner about here
-    std::string refuted;                     ///< why it cannot be the scanner's pose; empty when it can
+    double support = 0.0;                   ///< summed over the fiducials that pass where it puts them
+    std::vector<std::size_t> explained;     ///< fiducials that pass their checks where it puts them
+    std::vector<std::size_t> contradicted;  ///< fiducials the scan contradicts where it puts them
+    std::vector<FiducialFit> judged;        ///< every fiducial judged where it puts it, in their order
+    int corroborated = 0;                   ///< other fiducials' fits that put the scanner about here
+    std::string refuted;                    ///< why it cannot be the scanner's pose; empty when it can
 };
 
 /// What one scan's registration found.

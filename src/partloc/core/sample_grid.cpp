@@ -11,10 +11,12 @@
 
 namespace partloc {
 
-CellFrame::CellFrame(const Eigen::AlignedBox3d& box, double c, double max_cells) : origin(box.min()), cell(c) {
+CellFrame::CellFrame(const Eigen::AlignedBox3d& box, double c, double max_cells)
+    : origin(box.min()), cell(c) {
     const Eigen::Vector3d size = box.sizes();
     auto cells = [&](double k) {
-        return (std::floor(size.x() / k) + 1) * (std::floor(size.y() / k) + 1) * (std::floor(size.z() / k) + 1);
+        return (std::floor(size.x() / k) + 1) * (std::floor(size.y() / k) + 1) *
+               (std::floor(size.z() / k) + 1);
     };
     while (cells(cell) > max_cells) cell *= 1.25;
     inv_cell = 1.0 / cell;
@@ -111,7 +113,8 @@ int SampleGrid::nearest(const Eigen::Vector3d& p, int k, double max_distance, in
     if (std::abs(fx) > big || std::abs(fy) > big || std::abs(fz) > big) return 0;
     const int ix = static_cast<int>(fx), iy = static_cast<int>(fy), iz = static_cast<int>(fz);
     // A sample in a cell r cells away (Chebyshev) is at least (r - 1) cells away in space.
-    const int out = std::max({0, -ix, ix - (frame_.nx - 1), -iy, iy - (frame_.ny - 1), -iz, iz - (frame_.nz - 1)});
+    const int out =
+        std::max({0, -ix, ix - (frame_.nx - 1), -iy, iy - (frame_.ny - 1), -iz, iz - (frame_.nz - 1)});
     int first = out;
     if (out == 0) {
         first = distance_[frame_.index(ix, iy, iz)];  // 255: at least that
@@ -134,8 +137,8 @@ int SampleGrid::nearest(const Eigen::Vector3d& p, int k, double max_distance, in
     // Every sample outside the cells within Chebyshev distance r of p's cell lies at least this far from p:
     // r cells, and p's distance to the nearest face of its own cell (not only r cells: half the queries
     // near a surface then stop at the 27 cells around p instead of searching the next shell).
-    const double margin = std::min({f.x() - fx, 1.0 - (f.x() - fx), f.y() - fy, 1.0 - (f.y() - fy), f.z() - fz,
-                                    1.0 - (f.z() - fz)});
+    const double margin = std::min(
+        {f.x() - fx, 1.0 - (f.x() - fx), f.y() - fy, 1.0 - (f.y() - fy), f.z() - fz, 1.0 - (f.z() - fz)});
     const auto reached = [&](int r) { return (r + std::max(0.0, margin)) * frame_.cell; };
     // Cells closer (Chebyshev) to p's cell than `first` hold no sample: the distance transform, or the grid's
     // outside.
@@ -163,7 +166,8 @@ int SampleGrid::nearest(const Eigen::Vector3d& p, int k, double max_distance, in
                 if (r == 0 || std::abs(z - iz) == r || std::abs(y - iy) == r) {
                     // A whole row of the shell: its cells are consecutive in the CSR arrays.
                     const int x0 = std::max(ix - r, 0), x1 = std::min(ix + r, frame_.nx - 1);
-                    if (x0 <= x1) consider(start_[frame_.index(x0, y, z)], start_[frame_.index(x1, y, z) + 1]);
+                    if (x0 <= x1)
+                        consider(start_[frame_.index(x0, y, z)], start_[frame_.index(x1, y, z) + 1]);
                 } else {
                     visit(ix - r, y, z);
                     visit(ix + r, y, z);

@@ -33,9 +33,11 @@ struct CellFrame {
         return {static_cast<int>(c % nx), static_cast<int>((c / nx) % ny),
                 static_cast<int>(c / (static_cast<std::size_t>(nx) * ny))};
     }
-    bool contains(int x, int y, int z) const { return x >= 0 && y >= 0 && z >= 0 && x < nx && y < ny && z < nz; }
-    /// f(o, x, y, z) for cell c itself and each of its 26 neighbours in the frame (index, coordinates), z, y, x
-    /// ascending: the step of the grids' propagations (SampleGrid's distance transform, NearestMap's fill).
+    bool contains(int x, int y, int z) const {
+        return x >= 0 && y >= 0 && z >= 0 && x < nx && y < ny && z < nz;
+    }
+    /// f(o, x, y, z) for cell c itself and each of its 26 neighbours in the frame (index, coordinates), z, y,
+    /// x ascending: the step of the grids' propagations (SampleGrid's distance transform, NearestMap's fill).
     template <class F>
     void for_each_around(std::size_t c, F&& f) const {
         const Eigen::Array3i at = coordinates(c);
@@ -82,7 +84,7 @@ inline bool keep_nearest(int index, double d2, int k, int& found, int* indices, 
 }
 
 class SampleGrid {
-public:
+  public:
     SampleGrid() = default;
     /// `spacing`: typical distance between neighbouring samples (sets the cell size; any positive value
     /// gives exact answers, a good one fast answers).
@@ -97,7 +99,8 @@ public:
 
     /// The up to k (<= kMaxK) nearest samples within max_distance of p, nearest first: their indices and
     /// squared distances. Returns how many were found.
-    int nearest(const Eigen::Vector3d& p, int k, double max_distance, int* indices, double* squared_distances) const;
+    int nearest(const Eigen::Vector3d& p, int k, double max_distance, int* indices,
+                double* squared_distances) const;
 
     double cell_size() const { return frame_.cell; }
     bool empty() const { return points_.empty(); }
@@ -109,11 +112,14 @@ public:
     const std::vector<std::uint8_t>& distances() const { return distance_; }
 
   private:
-    std::vector<Eigen::Vector3d> points_;  // the samples in cell order (a copy: the grid can be copied freely)
-    std::vector<std::uint32_t> index_;     // their indices in the caller's array
+    std::vector<Eigen::Vector3d>
+        points_;                        // the samples in cell order (a copy: the grid can be copied freely)
+    std::vector<std::uint32_t> index_;  // their indices in the caller's array
     CellFrame frame_;
-    std::vector<std::uint32_t> start_;    // CSR over cells: samples of cell c are points_[start_[c], start_[c+1])
-    std::vector<std::uint8_t> distance_;  // Chebyshev distance, in cells, to the nearest occupied cell (capped)
+    std::vector<std::uint32_t>
+        start_;  // CSR over cells: samples of cell c are points_[start_[c], start_[c+1])
+    std::vector<std::uint8_t>
+        distance_;  // Chebyshev distance, in cells, to the nearest occupied cell (capped)
 };
 
 }  // namespace partloc

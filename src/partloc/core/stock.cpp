@@ -31,7 +31,7 @@ using cells::unpack;
 // hash of the keys themselves (cache misses) the whole build took 0.38 s on seed 106, with bricks 0.29 s
 // (cells of one spacing, measured).
 class BrickIndex {
-public:
+  public:
     std::uint32_t find(Key key) const {
         const std::uint32_t b = bricks_.find(brick(key));
         return b == kNone ? kNone : values_[64 * static_cast<std::size_t>(b) + local(key)];
@@ -46,7 +46,7 @@ public:
         values_[64 * static_cast<std::size_t>(b) + local(key)] = value;
     }
 
-private:
+  private:
     static Key brick(Key key) { return pack(unpack(key) / 4); }
     static int local(Key key) {
         const Eigen::Array3i c = unpack(key);
@@ -70,7 +70,7 @@ struct FieldValue {
 };
 
 class ImlsField {
-public:
+  public:
     /// `origin`: below every point and every position to be asked by more than `reach`.
     ImlsField(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& normals,
               const Eigen::Vector3d& origin, double reach)
@@ -129,7 +129,7 @@ public:
     /// Weight that a flat surface with one point per spacing^2 gives on itself: the integral of w over it.
     double flat_weight(double spacing) const { return M_PI * reach_ * reach_ / (4.0 * spacing * spacing); }
 
-private:
+  private:
     // The points of the 27 cubes around one, coordinates apart (the sums below read them in sequence).
     struct Candidates {
         std::vector<double> x, y, z, nx, ny, nz, np;  // np = n.p
@@ -226,13 +226,13 @@ private:
 Eigen::Array3i corner_offset(int j) { return {j & 1, j >> 1 & 1, j >> 2 & 1}; }
 
 // The 12 edges of a cell as pairs of its corners.
-constexpr std::array<std::array<int, 2>, 12> kCellEdges = {{{0, 1}, {2, 3}, {4, 5}, {6, 7}, {0, 2}, {1, 3},
-                                                            {4, 6}, {5, 7}, {0, 4}, {1, 5}, {2, 6}, {3, 7}}};
+constexpr std::array<std::array<int, 2>, 12> kCellEdges = {
+    {{0, 1}, {2, 3}, {4, 5}, {6, 7}, {0, 2}, {1, 3}, {4, 6}, {5, 7}, {0, 4}, {1, 5}, {2, 6}, {3, 7}}};
 
 // The grid cells that the surface crosses, found outward from the cells that hold points, with f at their
 // corners. The grid is sparse: keys to indices.
 class Band {
-public:
+  public:
     /// `min_support`: a corner is defined where field.support() reaches it.
     Band(const ImlsField& field, const Lattice& lattice, double min_support)
         : field_(field), lattice_(lattice), min_support_(min_support) {}
@@ -275,7 +275,7 @@ public:
         return true;
     }
 
-private:
+  private:
     // Evaluates f at the corners of `cells` that have no value yet.
     void add_corners(const std::vector<Key>& cells) {
         std::vector<Key> fresh;

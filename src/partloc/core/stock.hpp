@@ -32,8 +32,8 @@ struct StockSettings {
     /// surface, measured from it (the merged points are sparser: run.cpp strides them to 150 k before
     /// thinning).
     double spacing = 0.0;
-    double voxel = 1.5;              ///< edge of the grid's cells, in spacings
-    double radius = 4.0;             ///< reach of a point's weight (compact support), in spacings
+    double voxel = 1.5;   ///< edge of the grid's cells, in spacings
+    double radius = 4.0;  ///< reach of a point's weight (compact support), in spacings
     /// A grid corner is defined where the weight of the surface nearest to it is at least this fraction of
     /// what a flat surface with one point per spacing^2 has; elsewhere the stock stays open (nothing scanned
     /// there).

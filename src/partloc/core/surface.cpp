@@ -137,7 +137,8 @@ Surface make_surface(std::shared_ptr<open3d::geometry::PointCloud> cloud, double
 
 Surface compose_surfaces(const std::vector<const Surface*>& parts,
                          const std::vector<Eigen::Isometry3d>& T_this_part) {
-    if (parts.size() != T_this_part.size()) throw std::invalid_argument("compose_surfaces: one pose per part");
+    if (parts.size() != T_this_part.size())
+        throw std::invalid_argument("compose_surfaces: one pose per part");
     Surface s;
     s.cloud = std::make_shared<open3d::geometry::PointCloud>();
     s.spacing = std::numeric_limits<double>::infinity();
@@ -176,7 +177,7 @@ namespace {
 
 /// Lists of item indices by integer cell, in an open-addressing hash table that grows (load at most a half).
 class CellLists {
-public:
+  public:
     explicit CellLists(std::size_t expected) {
         std::size_t n = 64;
         while (n < 2 * expected) n *= 2;
@@ -200,7 +201,7 @@ public:
         s.head = item;
     }
 
-private:
+  private:
     struct Slot {
         std::int64_t x = 0, y = 0, z = 0, head = -1;
         bool used = false;

@@ -13,7 +13,8 @@
 
 namespace partloc {
 
-/// Points with unit normals and an exact nearest-sample search over them. Build once, query from many threads.
+/// Points with unit normals and an exact nearest-sample search over them. Build once, query from many
+/// threads.
 struct Surface {
     std::vector<Eigen::Vector3d> points;
     std::vector<Eigen::Vector3d> normals;
@@ -41,7 +42,8 @@ struct Surface {
                 double max_distance = std::numeric_limits<double>::infinity()) const;
     /// The up to k (<= SampleGrid::kMaxK) nearest samples within max_distance of p, nearest first: indices
     /// and squared distances. Returns how many were found.
-    int nearest(const Eigen::Vector3d& p, int k, double max_distance, int* indices, double* squared_distances) const;
+    int nearest(const Eigen::Vector3d& p, int k, double max_distance, int* indices,
+                double* squared_distances) const;
     /// The squared distance from p to sample `index`, computed as nearest() computes it (in the part's frame
     /// for a composed surface), to the bit.
     double squared_distance(const Eigen::Vector3d& p, int index) const;
@@ -93,7 +95,8 @@ Surface make_surface(std::shared_ptr<open3d::geometry::PointCloud> cloud, double
 /// The surfaces `parts` at poses `T_this_part` as one surface (Surface::parts), without a grid of its own: a
 /// grid over fiducials spread across a machine spans mostly empty space (seed 106: 0.5 s of a job's 12 s of
 /// CPU went to building such grids, one per scan and per fiducial fit). The parts must outlive it.
-Surface compose_surfaces(const std::vector<const Surface*>& parts, const std::vector<Eigen::Isometry3d>& T_this_part);
+Surface compose_surfaces(const std::vector<const Surface*>& parts,
+                         const std::vector<Eigen::Isometry3d>& T_this_part);
 
 /// Paper §3.2 step 5 (MeshLab's Poisson-disk filter): samples the mesh surface with Poisson-disk sampling,
 /// about one sample per `spacing`^2 of surface and no two closer than 0.8 `spacing`, with the triangles' own

@@ -34,8 +34,8 @@ struct BinState {
 
 /// The points on the model's surface: their residuals, and how well they fix the pose (inliers, rmse,
 /// JtJ, conditioning, spread, overflow).
-void surface_support(const std::vector<Eigen::Vector3d>& pts, const Surface& model, const Eigen::Vector3d& eye,
-                     const VerifySettings& s, Verification& v) {
+void surface_support(const std::vector<Eigen::Vector3d>& pts, const Surface& model,
+                     const Eigen::Vector3d& eye, const VerifySettings& s, Verification& v) {
     const double L = std::max(model.diameter / 2.0, 1e-12);
     double r2 = 0.0;
     Matrix6d Jn = Matrix6d::Zero();
@@ -91,7 +91,6 @@ void surface_support(const std::vector<Eigen::Vector3d>& pts, const Surface& mod
         Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> en(N / static_cast<double>(v.inliers));
         v.spread = std::max(0.0, en.eigenvalues()(0));
     }
-
 }
 
 /// The model's visible surface along the scanner's rays (a z-buffer of its samples) against the returns:
@@ -135,10 +134,14 @@ bool ray_bins(const std::vector<Eigen::Vector3d>& pts, const Surface& model, con
         BinState& b = it->second;
         const double delta = range - b.model_range;
         const double off = std::abs((p - model.points[b.sample]).dot(model.normals[b.sample]));
-        if (off <= tol && std::abs(delta) <= tol + s.bin_size) b.on = true;
-        else if (delta > 0) b.behind = true;
-        else if (delta < -near) b.front = true;
-        else b.crowded = true;
+        if (off <= tol && std::abs(delta) <= tol + s.bin_size)
+            b.on = true;
+        else if (delta > 0)
+            b.behind = true;
+        else if (delta < -near)
+            b.front = true;
+        else
+            b.crowded = true;
     }
     // Only a bin inside the model's outline can contradict it: at the outline a bin straddles the model's
     // edge and the background behind it.
@@ -146,18 +149,25 @@ bool ray_bins(const std::vector<Eigen::Vector3d>& pts, const Surface& model, con
         const std::int64_t step = std::int64_t(1) << 31;
         for (std::int64_t nk : {k - 1, k + 1, k - step, k + step}) {
             const auto it = bins.find(nk);
-            if (it == bins.end() || std::abs(it->second.model_range - b.model_range) > 3.0 * s.bin_size) return false;
+            if (it == bins.end() || std::abs(it->second.model_range - b.model_range) > 3.0 * s.bin_size)
+                return false;
         }
         return true;
     };
     for (const auto& [k, b] : bins) {
         if (!b.facing) continue;
-        if (b.on) ++v.observed;
-        else if (!interior(k, b)) ++v.occluded;
-        else if (b.crowded) ++v.crowded;
-        else if (b.behind && !b.front) ++v.seen_through;
-        else if (b.front) ++v.occluded;
-        else ++v.missing;
+        if (b.on)
+            ++v.observed;
+        else if (!interior(k, b))
+            ++v.occluded;
+        else if (b.crowded)
+            ++v.crowded;
+        else if (b.behind && !b.front)
+            ++v.seen_through;
+        else if (b.front)
+            ++v.occluded;
+        else
+            ++v.missing;
     }
     return true;
 }

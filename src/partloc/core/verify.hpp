@@ -23,17 +23,17 @@ struct VerifySettings {
 };
 
 struct Verification {
-    std::size_t inliers = 0;      ///< scan points on the model surface
-    std::size_t overflow = 0;     ///< scan points continuing a facing model face past the model's edge
-    std::size_t observed = 0;     ///< ray bins of facing model surface with a return at the model's range
-    std::size_t seen_through = 0; ///< ... with a return from behind the model surface and none on it
-    std::size_t crowded = 0;      ///< ... with a return just in front of it, where nothing can stand
-    std::size_t occluded = 0;     ///< ... with a return well in front of it only
-    std::size_t missing = 0;      ///< ... with no return at all
-    double rmse = 0.0;            ///< RMS point-to-plane distance of the inliers
-    double coverage = 0.0;        ///< observed / (observed + seen_through + crowded + missing)
-    double violation = 0.0;       ///< (seen_through + crowded) / (observed + seen_through + crowded)
-    double conditioning = 0.0;    ///< smallest eigenvalue of the normalised information (see below)
+    std::size_t inliers = 0;       ///< scan points on the model surface
+    std::size_t overflow = 0;      ///< scan points continuing a facing model face past the model's edge
+    std::size_t observed = 0;      ///< ray bins of facing model surface with a return at the model's range
+    std::size_t seen_through = 0;  ///< ... with a return from behind the model surface and none on it
+    std::size_t crowded = 0;       ///< ... with a return just in front of it, where nothing can stand
+    std::size_t occluded = 0;      ///< ... with a return well in front of it only
+    std::size_t missing = 0;       ///< ... with no return at all
+    double rmse = 0.0;             ///< RMS point-to-plane distance of the inliers
+    double coverage = 0.0;         ///< observed / (observed + seen_through + crowded + missing)
+    double violation = 0.0;        ///< (seen_through + crowded) / (observed + seen_through + crowded)
+    double conditioning = 0.0;     ///< smallest eigenvalue of the normalised information (see below)
     /// Smallest eigenvalue of the inliers' mean n n^T: 0 for one plane or two (an edge), 1/3 for a corner of
     /// three equal faces. A model lying flush in a plane with a few stray points has little spread.
     double spread = 0.0;

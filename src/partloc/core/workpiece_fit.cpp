@@ -9,11 +9,13 @@
 namespace partloc {
 
 WorkpieceFit fit_reference_surfaces(const std::vector<Eigen::Vector3d>& merged, const Surface& reference,
-                                    const WorkpieceFitSettings& st, const std::vector<Eigen::Vector3d>* normals) {
+                                    const WorkpieceFitSettings& st,
+                                    const std::vector<Eigen::Vector3d>* normals) {
     if (normals && normals->size() != merged.size()) normals = nullptr;
     WorkpieceFit fit;
     if (merged.size() < st.min_inliers) {
-        fit.reason = "too few workpiece points (" + std::to_string(merged.size()) + ") to fit the reference surfaces";
+        fit.reason =
+            "too few workpiece points (" + std::to_string(merged.size()) + ") to fit the reference surfaces";
         return fit;
     }
     // The last stage keeps only points within three noise sigmas (plus the model's sampling) of the surfaces.
@@ -83,8 +85,8 @@ WorkpieceFit fit_reference_surfaces(const std::vector<Eigen::Vector3d>& merged, 
     }
     char buf[400];
     if (icp.inliers < st.min_inliers) {
-        std::snprintf(buf, sizeof buf, "only %zu points lie on the reference surfaces (needs %zu)", icp.inliers,
-                      st.min_inliers);
+        std::snprintf(buf, sizeof buf, "only %zu points lie on the reference surfaces (needs %zu)",
+                      icp.inliers, st.min_inliers);
         fit.reason = buf;
     } else if (fit.conditioning < st.min_conditioning) {
         std::snprintf(buf, sizeof buf,
@@ -96,11 +98,12 @@ WorkpieceFit fit_reference_surfaces(const std::vector<Eigen::Vector3d>& merged, 
         // A coarse fit that slid into the wrong place keeps only the points that happen to lie near the
         // surfaces there, scattered over the whole band (measured: seed 1150, 19.5 degrees off, RMS 0.19 mm
         // against 0.08-0.10 for the right fits of 162 trials, scanner noise 0.13 mm).
-        std::snprintf(buf, sizeof buf,
-                      "the points on the reference surfaces scatter %.3g about them (RMS), more than %.3g times "
-                      "the noise (%.3g): the fit did not find the part (it may sit further from nominal than "
-                      "the fit reaches)",
-                      fit.rmse, st.max_rmse_noise, st.noise);
+        std::snprintf(
+            buf, sizeof buf,
+            "the points on the reference surfaces scatter %.3g about them (RMS), more than %.3g times "
+            "the noise (%.3g): the fit did not find the part (it may sit further from nominal than "
+            "the fit reaches)",
+            fit.rmse, st.max_rmse_noise, st.noise);
         fit.reason = buf;
     } else {
         fit.valid = true;
@@ -117,9 +120,9 @@ IcpResult fit_last_stage(const std::vector<Eigen::Vector3d>& points, const Surfa
     return icp_point_to_plane(points, reference, T_nominal_located, is, normals);
 }
 
-std::string part_disowns_scan(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>* normals,
-                              const WorkpieceFit& located, const Surface& reference,
-                              const WorkpieceFitSettings& wfs) {
+std::string part_disowns_scan(const std::vector<Eigen::Vector3d>& points,
+                              const std::vector<Eigen::Vector3d>* normals, const WorkpieceFit& located,
+                              const Surface& reference, const WorkpieceFitSettings& wfs) {
     const Eigen::Isometry3d T_nominal_located =
         located.valid ? located.T_located_nominal.inverse() : Eigen::Isometry3d::Identity();
     std::vector<Eigen::Vector3d> pts, nrm;
@@ -149,9 +152,9 @@ std::string part_disowns_scan(const std::vector<Eigen::Vector3d>& points, const 
         return {};
     }
     // Each point against the reference where its own fit puts it: the own fit moves the part by
-    // T_located_nominal, so the point sits at T_located_nominal^-1 p relative to the nominal surfaces. (Until this
-    // test, the point was moved by T_located_nominal itself, away from the surfaces: a scan 1 mm off moved its
-    // points 2 mm off, out of reach of the search, and only the points it slid along were counted.)
+    // T_located_nominal, so the point sits at T_located_nominal^-1 p relative to the nominal surfaces. (Until
+    // this test, the point was moved by T_located_nominal itself, away from the surfaces: a scan 1 mm off
+    // moved its points 2 mm off, out of reach of the search, and only the points it slid along were counted.)
     const Eigen::Isometry3d back = own.T_located_nominal.inverse();
     double sum = 0.0;
     std::size_t on = 0;

@@ -11,11 +11,12 @@
 namespace partloc {
 
 struct WorkpieceFitSettings {
-    double noise = 0.0;               ///< scan noise, 1 sigma (job units)
-    double spacing = 0.0;             ///< point spacing (job units)
-    double max_start_distance = 0.0;  ///< largest expected displacement from nominal (job units); 0: 10% of size
+    double noise = 0.0;    ///< scan noise, 1 sigma (job units)
+    double spacing = 0.0;  ///< point spacing (job units)
+    double max_start_distance =
+        0.0;  ///< largest expected displacement from nominal (job units); 0: 10% of size
     std::size_t min_inliers = 200;
-    double min_conditioning = 0.01;   ///< as in verification: all six degrees of freedom fixed
+    double min_conditioning = 0.01;  ///< as in verification: all six degrees of freedom fixed
     /// The points on the surfaces may scatter about them at most this many times the noise (RMS). The
     /// scanner's noise is along its rays, so a right fit shows less than all of it along the normals.
     double max_rmse_noise = 1.25;
@@ -36,7 +37,8 @@ struct WorkpieceFit {
 
 /// Fits the nominal reference surfaces (oriented samples at nominal position, machine frame) to the merged
 /// workpiece points (machine frame, axes at 0), starting at nominal. `normals` (optional, the points'
-/// normals) keep points of faces that meet a reference surface at its edge off that surface in the last stage.
+/// normals) keep points of faces that meet a reference surface at its edge off that surface in the last
+/// stage.
 WorkpieceFit fit_reference_surfaces(const std::vector<Eigen::Vector3d>& merged, const Surface& reference,
                                     const WorkpieceFitSettings& settings,
                                     const std::vector<Eigen::Vector3d>* normals = nullptr);
@@ -63,8 +65,8 @@ IcpResult fit_last_stage(const std::vector<Eigen::Vector3d>& points, const Surfa
 /// Not the residual gate, nor the full conditioning: on the real bunny scans the own fits' RMS is 1.6-1.8
 /// times the noise estimated from the data, and the top view's conditioning is 0.0095 (against 0.010); the
 /// wrongly placed scans of seeds 1320 and 1355 had 0.0000 (points on one plane).
-std::string part_disowns_scan(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>* normals,
-                              const WorkpieceFit& located, const Surface& reference,
-                              const WorkpieceFitSettings& settings);
+std::string part_disowns_scan(const std::vector<Eigen::Vector3d>& points,
+                              const std::vector<Eigen::Vector3d>* normals, const WorkpieceFit& located,
+                              const Surface& reference, const WorkpieceFitSettings& settings);
 
 }  // namespace partloc

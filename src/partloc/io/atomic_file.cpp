@@ -1,9 +1,10 @@
 #include "partloc/io/atomic_file.hpp"
 
+#include <unistd.h>
+
 #include <atomic>
 #include <fstream>
 #include <stdexcept>
-#include <unistd.h>
 
 namespace partloc::io {
 

@@ -8,10 +8,10 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdio>
 #include <exception>
 #include <functional>
 #include <initializer_list>
-#include <cstdio>
 #include <limits>
 #include <set>
 #include <sstream>
@@ -55,6 +55,12 @@ class JobParser {
     void parse(const YAML::Node& root, Job& job, std::vector<FileTask>& tasks);
 
   private:
+    // parse's sections, in the job file's order.
+    void parse_fiducials(const YAML::Node& root, Job& job, std::vector<FileTask>& tasks);
+    void parse_workpiece(const YAML::Node& root, Job& job, std::vector<FileTask>& tasks);
+    void parse_scans(const YAML::Node& root, Job& job, std::vector<FileTask>& tasks);
+    void parse_output(const YAML::Node& root, Job& job);
+
     [[noreturn]] void fail(const YAML::Node& node, const std::string& path,
                            const std::string& problem) const {
         std::string line;
@@ -144,8 +150,9 @@ class JobParser {
     void check_length(const YAML::Node& n, const std::string& path, double v) const {
         const double limit = kMaxMillimetres / job_mm_per_unit_;
         if (std::abs(v) > limit)
-            fail(n, path, "a coordinate of " + format(v) + " is beyond the " + format(limit) +
-                              " (10 km) a machine can hold");
+            fail(n, path,
+                 "a coordinate of " + format(v) + " is beyond the " + format(limit) +
+                     " (10 km) a machine can hold");
     }
 
     std::string text(const YAML::Node& n, const std::string& path) const {
@@ -296,12 +303,12 @@ class JobParser {
                 fail(a["type"], at + ".type", "expected linear or rotary, found '" + type + "'");
             const Eigen::Vector3d d = vector3(required(a, at, "direction"), at + ".direction");
             if (d.isZero(0.0)) fail(a["direction"], at + ".direction", "must not be zero");
-            // Its length does not matter: [1e200, 0, 0] and [1e-200, 0, 0] are [1, 0, 0]. Their norms overflow
-            // or underflow, so such a vector is first divided by its largest coordinate; one of ordinary length
-            // is normalised as it was, bit for bit.
+            // Its length does not matter: [1e200, 0, 0] and [1e-200, 0, 0] are [1, 0, 0]. Their norms
+            // overflow or underflow, so such a vector is first divided by its largest coordinate; one of
+            // ordinary length is normalised as it was, bit for bit.
             const double length = d.norm();
             axis.direction = length > 1e-100 && length < 1e100 ? d.normalized()
-                                                                : (d / d.cwiseAbs().maxCoeff()).normalized();
+                                                               : (d / d.cwiseAbs().maxCoeff()).normalized();
             if (axis.type == AxisType::Rotary)
                 axis.point = position(required(a, at, "point"), at + ".point");
             else if (a["point"].IsDefined())
@@ -333,13 +340,11 @@ void JobParser::parse(const YAML::Node& root, Job& job, std::vector<FileTask>& t
 
     if (const YAML::Node s = root["scanner"]; s.IsDefined() && !s.IsNull()) {
         check_map(s, "scanner", {"point_spacing", "noise"});
-        if (s["point_spacing"].IsDefined())
-        {
+        if (s["point_spacing"].IsDefined()) {
             job.scanner.point_spacing = number_at_least(s["point_spacing"], "scanner.point_spacing", 0, true);
             check_length(s["point_spacing"], "scanner.point_spacing", *job.scanner.point_spacing);
         }
-        if (s["noise"].IsDefined())
-        {
+        if (s["noise"].IsDefined()) {
             job.scanner.noise = number_at_least(s["noise"], "scanner.noise", 0, false);
             check_length(s["noise"], "scanner.noise", *job.scanner.noise);
         }
@@ -348,6 +353,13 @@ void JobParser::parse(const YAML::Node& root, Job& job, std::vector<FileTask>& t
     machine_ = machine(root["machine"]);
     job.machine = machine_;
 
+    parse_fiducials(root, job, tasks);
+    parse_workpiece(root, job, tasks);
+    parse_scans(root, job, tasks);
+    parse_output(root, job);
+}
+
+void JobParser::parse_fiducials(const YAML::Node& root, Job& job, std::vector<FileTask>& tasks) {
     const YAML::Node fiducials = required(root, "", "fiducials");
     if (!fiducials.IsSequence() || fiducials.size() == 0)
         fail(fiducials, "fiducials",
@@ -372,11 +384,14 @@ void JobParser::parse(const YAML::Node& root, Job& job, std::vector<FileTask>& t
         fid.pose_sigma = f["pose_sigma"].IsDefined()
                              ? number_at_least(f["pose_sigma"], at + ".pose_sigma", 0, false)
                              : 0.005 / job_mm_per_unit_;
-        tasks.push_back({model, [&fid](const fs::path& p, const FileRef& r, std::vector<std::string>& warnings) {
-                             fid.model = read_model(p, r.file, r.scale, &warnings);
-                         }});
+        tasks.push_back(
+            {model, [&fid](const fs::path& p, const FileRef& r, std::vector<std::string>& warnings) {
+                 fid.model = read_model(p, r.file, r.scale, &warnings);
+             }});
     }
+}
 
+void JobParser::parse_workpiece(const YAML::Node& root, Job& job, std::vector<FileTask>& tasks) {
     const YAML::Node w = required(root, "", "workpiece");
     check_map(w, "workpiece",
               {"reference_surfaces", "datum", "final_part", "moves_with", "region", "datums", "fit"});
@@ -397,9 +412,10 @@ void JobParser::parse(const YAML::Node& root, Job& job, std::vector<FileTask>& t
                          "datum name '" + datum.name + "' is already used by workpiece.datums[" +
                              std::to_string(j) + "]");
             const FileRef surfaces = file_ref(required(d[i], at, "surfaces"), at + ".surfaces");
-            tasks.push_back({surfaces, [&datum](const fs::path& p, const FileRef& r, std::vector<std::string>& warnings) {
-                                 datum.surfaces = read_model(p, r.file, r.scale, &warnings);
-                             }});
+            tasks.push_back(
+                {surfaces, [&datum](const fs::path& p, const FileRef& r, std::vector<std::string>& warnings) {
+                     datum.surfaces = read_model(p, r.file, r.scale, &warnings);
+                 }});
         }
     }
     const bool has_datums = !job.workpiece.datums.empty();
@@ -418,16 +434,18 @@ void JobParser::parse(const YAML::Node& root, Job& job, std::vector<FileTask>& t
     if (!has_datums || (w["reference_surfaces"].IsDefined() && !w["reference_surfaces"].IsNull())) {
         const FileRef reference =
             file_ref(required(w, "workpiece", "reference_surfaces"), "workpiece.reference_surfaces");
-        tasks.push_back({reference, [&job](const fs::path& p, const FileRef& r, std::vector<std::string>& warnings) {
-                             job.workpiece.reference_surfaces = read_model(p, r.file, r.scale, &warnings);
-                         }});
+        tasks.push_back(
+            {reference, [&job](const fs::path& p, const FileRef& r, std::vector<std::string>& warnings) {
+                 job.workpiece.reference_surfaces = read_model(p, r.file, r.scale, &warnings);
+             }});
     }
     if (w["datum"].IsDefined()) job.workpiece.T_machine_workpiece = pose(w["datum"], "workpiece.datum");
     if (w["final_part"].IsDefined() && !w["final_part"].IsNull()) {
         const FileRef part = file_ref(w["final_part"], "workpiece.final_part");
-        tasks.push_back({part, [&job](const fs::path& p, const FileRef& r, std::vector<std::string>& warnings) {
-                             job.workpiece.final_part = read_model(p, r.file, r.scale, &warnings);
-                         }});
+        tasks.push_back(
+            {part, [&job](const fs::path& p, const FileRef& r, std::vector<std::string>& warnings) {
+                 job.workpiece.final_part = read_model(p, r.file, r.scale, &warnings);
+             }});
     }
     job.workpiece.moves_with = axis_chain(w["moves_with"], "workpiece.moves_with");
     if (const YAML::Node r = w["region"]; r.IsDefined() && !r.IsNull()) {
@@ -438,7 +456,9 @@ void JobParser::parse(const YAML::Node& root, Job& job, std::vector<FileTask>& t
             fail(r, "workpiece.region", "max must be greater than min on every axis");
         job.workpiece.region = Eigen::AlignedBox3d(lo, hi);
     }
+}
 
+void JobParser::parse_scans(const YAML::Node& root, Job& job, std::vector<FileTask>& tasks) {
     const YAML::Node scans = required(root, "", "scans");
     if (!scans.IsSequence() || scans.size() == 0)
         fail(scans, "scans", "expected a list of one or more scans, found " + describe(scans));
@@ -458,20 +478,24 @@ void JobParser::parse(const YAML::Node& root, Job& job, std::vector<FileTask>& t
             scan.axes = axis_values(s["axes"], at + ".axes");
         }
         scan.file = ref.file;
-        tasks.push_back({ref, [&scan](const fs::path& p, const FileRef& r, std::vector<std::string>& warnings) {
-                             auto cloud = read_point_cloud(p, r.file, r.scale, &warnings);
-                             // One point at 1e9 in a scan of 200 mm is a glitch, not part of the scene:
-                             // dropped and named, so that it neither spoils the scan nor passes unseen.
-                             if (const std::size_t far = remove_far_points(cloud->points_, cloud->normals_))
-                                 warnings.push_back(r.file + ": " + std::to_string(far) +
-                                                    (far == 1 ? " point lies" : " points lie") +
-                                                    " more than 100 times the scan's size from the rest "
-                                                    "and " + (far == 1 ? "was" : "were") + " left out");
-                             scan.points = std::move(cloud);
-                         }});
+        tasks.push_back(
+            {ref, [&scan](const fs::path& p, const FileRef& r, std::vector<std::string>& warnings) {
+                 auto cloud = read_point_cloud(p, r.file, r.scale, &warnings);
+                 // One point at 1e9 in a scan of 200 mm is a glitch, not part of the scene:
+                 // dropped and named, so that it neither spoils the scan nor passes unseen.
+                 if (const std::size_t far = remove_far_points(cloud->points_, cloud->normals_))
+                     warnings.push_back(r.file + ": " + std::to_string(far) +
+                                        (far == 1 ? " point lies" : " points lie") +
+                                        " more than 100 times the scan's size from the rest "
+                                        "and " +
+                                        (far == 1 ? "was" : "were") + " left out");
+                 scan.points = std::move(cloud);
+             }});
     }
     job.probed_poses = probed_;
+}
 
+void JobParser::parse_output(const YAML::Node& root, Job& job) {
     // output: the work-offset files (SPEC "Machining"); 1..6 is what all four dialects take (G54..G59).
     if (const YAML::Node o = root["output"]; o.IsDefined() && !o.IsNull()) {
         check_map(o, "output", {"offsets", "work_offset"});
@@ -526,18 +550,18 @@ void check_job_geometry(const Job& job, const std::string& job_name) {
                            std::size_t min_points, const std::string& what, const char* needs, int min_rank) {
         const Extent e = extent_of(points);
         if (e.points < min_points)
-            throw InputError(file, "has only " + std::to_string(e.points) + (e.points == 1 ? " point" : " points") +
-                                       "; " + what + " needs at least " + std::to_string(min_points));
+            throw InputError(file, "has only " + std::to_string(e.points) +
+                                       (e.points == 1 ? " point" : " points") + "; " + what +
+                                       " needs at least " + std::to_string(min_points));
         if (!(e.max_abs <= max_length))
             throw InputError(file, "coordinates reach " + shortest(e.max_abs) + unit + ", beyond the " +
                                        shortest(max_length) + unit +
                                        " (10 km) a machine can hold: a wrong unit or a corrupt file?");
         if (e.rank >= min_rank) return e;
         if (e.rank == 0)
-            throw InputError(file, "all " + std::to_string(e.points) + " points are one and the same point; " +
-                                       what + " needs " + needs);
-        if (e.rank == 1)
-            throw InputError(file, "its points lie on one line; " + what + " needs " + needs);
+            throw InputError(file, "all " + std::to_string(e.points) +
+                                       " points are one and the same point; " + what + " needs " + needs);
+        if (e.rank == 1) throw InputError(file, "its points lie on one line; " + what + " needs " + needs);
         if (e.rank == 2)
             throw InputError(file, "its points lie in one plane (thickness " + shortest(e.thickness) +
                                        " against a size of " + shortest(e.size) + unit + "); " + what +
@@ -546,13 +570,14 @@ void check_job_geometry(const Job& job, const std::string& job_name) {
     };
     double largest_scan = 0, densest_spacing = std::numeric_limits<double>::infinity();
     for (const Scan& s : job.scans) {
-        const Extent e = check(s.file, s.points->points_, 10, "a scan", "points spread in three dimensions", 3);
+        const Extent e =
+            check(s.file, s.points->points_, 10, "a scan", "points spread in three dimensions", 3);
         largest_scan = std::max(largest_scan, e.diagonal);
         densest_spacing = std::min(densest_spacing, e.diagonal / std::sqrt(static_cast<double>(e.points)));
     }
     for (const Fiducial& f : job.fiducials) {
-        const Extent e = check(f.model.file, vertices_of(f.model), 4, "a fiducial",
-                               "a three-dimensional shape", 3);
+        const Extent e =
+            check(f.model.file, vertices_of(f.model), 4, "a fiducial", "a three-dimensional shape", 3);
         if (e.diagonal > 1000 * largest_scan)
             throw InputError(f.model.file, "the model is " + shortest(e.diagonal / largest_scan) +
                                                " times larger than the largest scan (" +
@@ -562,8 +587,10 @@ void check_job_geometry(const Job& job, const std::string& job_name) {
     const Workpiece& w = job.workpiece;
     if (w.reference_surfaces.mesh || w.reference_surfaces.points)
         check(w.reference_surfaces.file, vertices_of(w.reference_surfaces), 3, "a set of reference surfaces",
-              "at least a surface", 2);  // one plane is enough for a plate's top (3 of the 6 degrees of freedom)
-    if (w.final_part) check(w.final_part->file, vertices_of(*w.final_part), 3, "the final part", "a surface", 2);
+              "at least a surface",
+              2);  // one plane is enough for a plate's top (3 of the 6 degrees of freedom)
+    if (w.final_part)
+        check(w.final_part->file, vertices_of(*w.final_part), 3, "the final part", "a surface", 2);
     // A spacing far below what the scans can have (their diagonal over the root of their count is about
     // their spacing) sizes grids and Open3D's voxel downsampling by it: 1e-9 mm asks 2^31 cells and more.
     if (job.scanner.point_spacing && *job.scanner.point_spacing < densest_spacing / 100)

@@ -30,14 +30,16 @@ OutputFolderLock::OutputFolderLock(const fs::path& dir) {
     if (ec) throw std::runtime_error(dir.string() + ": cannot be created (" + ec.message() + ")");
     const fs::path lock = dir / ".partloc.lock";
     fd_ = ::open(lock.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
-    if (fd_ < 0) throw std::runtime_error(lock.string() + ": cannot be created (" + std::strerror(errno) + ")");
+    if (fd_ < 0)
+        throw std::runtime_error(lock.string() + ": cannot be created (" + std::strerror(errno) + ")");
     if (::flock(fd_, LOCK_EX | LOCK_NB) != 0) {
         const int error = errno;
         ::close(fd_);
         fd_ = -1;
         if (error == EWOULDBLOCK)
-            throw FolderBusy(dir.string() + ": another partloc run is writing into this folder; wait for it "
-                                            "to finish or choose another --out");
+            throw FolderBusy(dir.string() +
+                             ": another partloc run is writing into this folder; wait for it "
+                             "to finish or choose another --out");
         throw std::runtime_error(lock.string() + ": cannot be locked (" + std::strerror(error) + ")");
     }
     // Only now, with the folder ours, are a killed run's temporaries certainly nobody's.

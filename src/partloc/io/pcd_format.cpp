@@ -252,8 +252,9 @@ RawGeometry read_pcd(const std::filesystem::path& path, std::string_view bytes, 
     g.vertices = std::move(cloud.points_);
     if (cloud.normals_.size() == g.vertices.size()) g.normals = std::move(cloud.normals_);
     if (!extra.empty())
-        g.warnings.push_back(extra + "; the rest of the file was not read (a count smaller than the data: is "
-                                     "the file cut or half exported?)");
+        g.warnings.push_back(extra +
+                             "; the rest of the file was not read (a count smaller than the data: is "
+                             "the file cut or half exported?)");
     return g;
 }
 

@@ -216,7 +216,8 @@ std::string escape_html(const std::string& text) {
 }
 
 /// The banner and the pose: what the machinist came for.
-static void pose_section(std::ostream& h, const Job& job, const JobResult& result, const Formatter& f, const std::string& u) {
+static void pose_section(std::ostream& h, const Job& job, const JobResult& result, const Formatter& f,
+                         const std::string& u) {
     const WorkpieceResult& w = result.workpiece;
     std::size_t registered = 0;
     for (const auto& s : result.scans) registered += s.valid ? 1 : 0;
@@ -250,8 +251,10 @@ static void pose_section(std::ostream& h, const Job& job, const JobResult& resul
         h << "</tr>\n";
         if (w.uncertainty.available) {
             h << "<tr><th>± 95 % (uncertainty)</th>";
-            for (int i = 0; i < 3; ++i) h << "<td class=num>± " << f.length(w.uncertainty.origin[i]) << "</td>";
-            for (int i = 0; i < 3; ++i) h << "<td class=num>± " << f.angle(w.uncertainty.euler_deg[i]) << "</td>";
+            for (int i = 0; i < 3; ++i)
+                h << "<td class=num>± " << f.length(w.uncertainty.origin[i]) << "</td>";
+            for (int i = 0; i < 3; ++i)
+                h << "<td class=num>± " << f.angle(w.uncertainty.euler_deg[i]) << "</td>";
             h << "</tr>\n";
         } else {
             h << "<tr><th>± 95 % (uncertainty)</th><td colspan=6 class=dim>not estimated (fewer than three "
@@ -276,7 +279,8 @@ static void pose_section(std::ostream& h, const Job& job, const JobResult& resul
 }
 
 /// One row per scan: status, fiducials, scale, time, reason and warnings.
-static void scans_section(std::ostream& h, const Job& job, const JobResult& result, const Formatter& f, const std::string& u) {
+static void scans_section(std::ostream& h, const Job& job, const JobResult& result, const Formatter& f,
+                          const std::string& u) {
     h << "<h2>Scans</h2>\n<table><tr><th>#</th><th>file</th><th>axes</th><th>status</th><th>fiducials</th>"
          "<th>score</th><th>rmse ("
       << u << ")</th><th>points</th><th>spacing (" << u << ")</th><th>noise (" << u
@@ -327,7 +331,8 @@ static void fits_section(std::ostream& h, const JobResult& result, const Formatt
 }
 
 /// Three orthographic views of the merged points with the nominal and located frames.
-static void points_section(std::ostream& h, const Job& job, const JobResult& result, const Formatter& f, const ReportOptions& options) {
+static void points_section(std::ostream& h, const Job& job, const JobResult& result, const Formatter& f,
+                           const ReportOptions& options) {
     const WorkpieceResult& w = result.workpiece;
     const Eigen::Isometry3d& nominal = job.workpiece.T_machine_workpiece;
     h << "<h2>Merged workpiece points (machine frame, all axes at 0)</h2>\n";
@@ -360,7 +365,8 @@ static void points_section(std::ostream& h, const Job& job, const JobResult& res
 }
 
 /// What the job said: units, scanner, models, axes and fiducials.
-static void job_section(std::ostream& h, const Job& job, const JobResult& result, const Formatter& f, const std::string& u) {
+static void job_section(std::ostream& h, const Job& job, const JobResult& result, const Formatter& f,
+                        const std::string& u) {
     h << "<h2>Job</h2>\n<table>";
     h << "<tr><th>units</th><td>" << u << "</td></tr>";
     h << "<tr><th>scanner</th><td>point spacing "

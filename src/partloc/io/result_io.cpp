@@ -225,8 +225,9 @@ std::vector<fs::path> write_outputs(const fs::path& out_dir, const Job& job, con
     {
         std::error_code ec;
         fs::remove(out_dir / "result.json", ec);
-        if (ec) throw std::runtime_error((out_dir / "result.json").string() + ": cannot be replaced (" +
-                                         ec.message() + ")");
+        if (ec)
+            throw std::runtime_error((out_dir / "result.json").string() + ": cannot be replaced (" +
+                                     ec.message() + ")");
     }
     const std::string units = "units " + job.units;
     // The files side by side (seed 106: the three models 12-13 ms, the report 8-9 ms, one after another),

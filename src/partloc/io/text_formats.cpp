@@ -126,8 +126,8 @@ RawGeometry parse_vtk(std::string_view bytes, const std::string& name) {
     if (t != "POINTS") throw InputError(name, "has no POINTS section");
     double count = 0;
     // At most 10^12, as PLY's and PCD's counts: beyond size_t the cast is undefined (found by fuzz_vtk).
-    if (!tokens.next(t) || !parse_number(t, count) || count < 0 || count > 1e12 || count != std::floor(count) ||
-        !tokens.next(t))
+    if (!tokens.next(t) || !parse_number(t, count) || count < 0 || count > 1e12 ||
+        count != std::floor(count) || !tokens.next(t))
         throw InputError(name, "line " + std::to_string(tokens.line()) + ": expected 'POINTS COUNT TYPE'");
     const std::size_t n = static_cast<std::size_t>(count);
     RawGeometry g;

@@ -71,8 +71,8 @@ struct Config {
     PartSettings part;
     /// The reference surfaces' fit; its noise and spacing are set from the scans.
     WorkpieceFitSettings workpiece;
-    DatumFitSettings datums;   ///< the 3-2-1 fit; its noise and spacing are set from the scans
-    StockSettings stock;       ///< its spacing is set from the scans
+    DatumFitSettings datums;  ///< the 3-2-1 fit; its noise and spacing are set from the scans
+    StockSettings stock;      ///< its spacing is set from the scans
     UncertaintySettings uncertainty;
 };
 

@@ -29,10 +29,10 @@ struct ScannerSpec {
 
 struct Fiducial {
     std::string name;
-    ModelSource model;                                           ///< in the fiducial's own frame
+    ModelSource model;                                                     ///< in the fiducial's own frame
     Eigen::Isometry3d T_machine_fiducial = Eigen::Isometry3d::Identity();  ///< as probed at probed_at
-    AxisValues probed_at;                                        ///< axis values when probed (default all 0)
-    std::vector<std::string> moves_with;                         ///< axes that carry it, base first
+    AxisValues probed_at;                 ///< axis values when probed (default all 0)
+    std::vector<std::string> moves_with;  ///< axes that carry it, base first
     /// 1-sigma probing uncertainty of the pose (job units). load_job always sets it: as given, or
     /// default_pose_sigma(units). The initial value is that default for a job in mm (Job's default units);
     /// an in-memory job in other units must set it. 0 means the probed pose is taken as exact.
@@ -59,7 +59,7 @@ struct Workpiece {
     std::optional<ModelSource> final_part;  ///< the part to be cut, at its nominal position
     std::vector<std::string> moves_with;
     std::optional<Eigen::AlignedBox3d> region;  ///< crop box, machine frame, axes at 0
-    std::vector<Datum> datums;  ///< empty, or three: primary, secondary, tertiary
+    std::vector<Datum> datums;                  ///< empty, or three: primary, secondary, tertiary
     WorkpieceFitMode fit = WorkpieceFitMode::Simultaneous;
 };
 
@@ -70,9 +70,9 @@ struct ProbedPose {
 };
 
 struct Scan {
-    std::string file;  ///< as written in the job
+    std::string file;                                            ///< as written in the job
     std::shared_ptr<const open3d::geometry::PointCloud> points;  ///< scan frame
-    AxisValues axes;   ///< axis values when the scan was taken
+    AxisValues axes;                                             ///< axis values when the scan was taken
 };
 
 /// What `run` writes besides result.json and the models (SPEC "Machining").

@@ -42,7 +42,8 @@ void weigh_registrations(PartSelection& s, const PartInputs& in, double noise, c
     const auto& regs = *in.registrations;
     const auto& ev = *in.evidence;
     for (std::size_t i = 0; i < regs.size(); ++i)
-        if (s.registered[i] && ev[i].has_points()) s.sigma[i] = sigma_at(regs[i].information, in.part_at_scan[i]);
+        if (s.registered[i] && ev[i].has_points())
+            s.sigma[i] = sigma_at(regs[i].information, in.part_at_scan[i]);
     for (std::size_t i = 0; i < regs.size(); ++i) {
         if (!s.registered[i] || !(s.sigma[i] > ps.loose * noise)) continue;
         s.registered[i] = 0;
@@ -179,7 +180,8 @@ void ScanEvidence::normals_at(const std::vector<std::size_t>& idx) {
     // The neighbour grid is built once: the merge, the lone-scan check and the part's last fit ask in turn.
     if (!grid) grid = std::make_shared<RadiusGrid>(normals_grid(c.points_, normal_radius));
     const auto n = estimate_normals(c.points_, *grid, normal_radius, normal_neighbours, &missing);
-    for (std::size_t j = 0; j < missing.size(); ++j) c.normals_[missing[j]] = facing(n[j], c.points_[missing[j]], eye);
+    for (std::size_t j = 0; j < missing.size(); ++j)
+        c.normals_[missing[j]] = facing(n[j], c.points_[missing[j]], eye);
 }
 
 void ScanEvidence::all_normals() {
@@ -211,9 +213,11 @@ PartSelection first_selection(const PartInputs& in) {
         if (regs[i].fiducials.size() < 2 && !regs[i].corroborated) {
             const std::string& name = names[regs[i].source];
             s.registered[i] = 0;
-            s.rejected[i] = "only " + name + "'s fit places this scan, and it puts nothing of the scan in the "
-                                             "workpiece's region: " +
-                            name + " moved, or a shape like it elsewhere placed the scan, or the scan misses the part";
+            s.rejected[i] =
+                "only " + name +
+                "'s fit places this scan, and it puts nothing of the scan in the "
+                "workpiece's region: " +
+                name + " moved, or a shape like it elsewhere placed the scan, or the scan misses the part";
         } else {
             s.warnings[i] = "registered, but it shows nothing of the workpiece in its region";
         }
@@ -221,7 +225,6 @@ PartSelection first_selection(const PartInputs& in) {
     if (!s.any_registered()) s.none_left = "no scan could be registered to the machine";
     return s;
 }
-
 
 ScanEvidence scan_evidence(const open3d::geometry::PointCloud& points, const Scale& scale,
                            const Eigen::Isometry3d& T_machine0_scan, const Eigen::Vector3d& viewpoint,
@@ -250,11 +253,14 @@ std::shared_ptr<open3d::geometry::PointCloud> merge_scans(std::vector<ScanEviden
                                                           const PartSelection& selection, bool fit_only,
                                                           const PartSettings& settings) {
     auto m = std::make_shared<open3d::geometry::PointCloud>();
-    const auto taken = [&](std::size_t i) { return selection.registered[i] && (!fit_only || selection.in_fit[i]); };
+    const auto taken = [&](std::size_t i) {
+        return selection.registered[i] && (!fit_only || selection.in_fit[i]);
+    };
     std::size_t total = 0;
     for (std::size_t i = 0; i < evidence.size(); ++i)
         if (taken(i)) total += evidence[i].workpiece_points->points_.size();
-    const std::size_t stride = std::max<std::size_t>(1, (total + settings.merged_points - 1) / settings.merged_points);
+    const std::size_t stride =
+        std::max<std::size_t>(1, (total + settings.merged_points - 1) / settings.merged_points);
     std::size_t at = 0;  // index into the concatenation, so that the stride runs on across scans
     std::vector<std::vector<std::size_t>> keep(evidence.size());
     for (std::size_t i = 0; i < evidence.size(); ++i) {
@@ -277,7 +283,8 @@ std::shared_ptr<open3d::geometry::PointCloud> merge_scans(std::vector<ScanEviden
     }
     if (m->normals_.size() != m->points_.size()) m->normals_.clear();
     if (m->points_.size() > settings.outlier_min_points)
-        m = m->SelectByIndex(statistical_inliers(m->points_, settings.outlier_neighbours, settings.outlier_sigmas));
+        m = m->SelectByIndex(
+            statistical_inliers(m->points_, settings.outlier_neighbours, settings.outlier_sigmas));
     return m;
 }
 

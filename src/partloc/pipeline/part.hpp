@@ -1,6 +1,6 @@
 #pragma once
-// The part (paper §3.4.2): the registered scans' workpiece points, the choice of the scans that the part's fit
-// takes, and the fit of the nominal reference surfaces to their merged points.
+// The part (paper §3.4.2): the registered scans' workpiece points, the choice of the scans that the part's
+// fit takes, and the fit of the nominal reference surfaces to their merged points.
 #include <open3d/geometry/PointCloud.h>
 
 #include <Eigen/Geometry>
@@ -45,18 +45,16 @@ ScanEvidence scan_evidence(const open3d::geometry::PointCloud& points, const Sca
 
 /// Which registered scans the part's fit takes; the outcome of each scan for the part.
 struct PartSelection {
-    std::vector<char> registered;        ///< the registration stands
-    std::vector<char> in_fit;            ///< in the part's fit (meaningful for registered scans)
-    std::vector<std::string> rejected;   ///< why a registration was taken back; empty where it was not
-    std::vector<std::string> warnings;   ///< per scan, for the person (seen nothing of the part, left out)
-    std::vector<double> sigma;           ///< each scan's registration uncertainty at the part (1 sigma)
-    double sigma_limit = 0.0;            ///< beyond it a scan is left out of the fit
-    std::string none_left;               ///< why no scan is left, when none is
+    std::vector<char> registered;       ///< the registration stands
+    std::vector<char> in_fit;           ///< in the part's fit (meaningful for registered scans)
+    std::vector<std::string> rejected;  ///< why a registration was taken back; empty where it was not
+    std::vector<std::string> warnings;  ///< per scan, for the person (seen nothing of the part, left out)
+    std::vector<double> sigma;          ///< each scan's registration uncertainty at the part (1 sigma)
+    double sigma_limit = 0.0;           ///< beyond it a scan is left out of the fit
+    std::string none_left;              ///< why no scan is left, when none is
 
     bool any_registered() const;
-    bool operator==(const PartSelection& o) const {
-        return registered == o.registered && in_fit == o.in_fit;
-    }
+    bool operator==(const PartSelection& o) const { return registered == o.registered && in_fit == o.in_fit; }
 };
 
 /// The part's fit from the merged points of the scans it takes.
@@ -82,8 +80,8 @@ struct PartInputs {
     /// Per scan, where the reference surfaces' centre is at the scan's axis values (machine frame).
     std::vector<Eigen::Vector3d> part_at_scan;
     std::vector<std::string> fiducial_names;  ///< in the job's order
-    const Surface* reference = nullptr;  ///< nominal reference surfaces, machine0
-    double spacing = 0.0;                ///< the scans' median point spacing
+    const Surface* reference = nullptr;       ///< nominal reference surfaces, machine0
+    double spacing = 0.0;                     ///< the scans' median point spacing
 };
 
 /// The selection before any fit: each registration as it stands, less the scans that only one fiducial's
@@ -95,9 +93,10 @@ PartSelection first_selection(const PartInputs& in);
 /// longer changes it (README, "The part").
 PartFit fit_part(const PartInputs& in, PartSelection selection, const Config& config);
 
-/// The registered scans' workpiece points (those in the fit only, when fit_only), thinned by their order to at
-/// most PartSettings::merged_points, statistical outliers removed. Never thinned on a voxel grid: on a face
-/// nearly parallel to its planes (a part squared to the machine) which points it keeps depends on the noise.
+/// The registered scans' workpiece points (those in the fit only, when fit_only), thinned by their order to
+/// at most PartSettings::merged_points, statistical outliers removed. Never thinned on a voxel grid: on a
+/// face nearly parallel to its planes (a part squared to the machine) which points it keeps depends on the
+/// noise.
 std::shared_ptr<open3d::geometry::PointCloud> merge_scans(std::vector<ScanEvidence>& evidence,
                                                           const PartSelection& selection, bool fit_only,
                                                           const PartSettings& settings);

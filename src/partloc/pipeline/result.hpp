@@ -14,7 +14,8 @@
 
 namespace partloc {
 
-/// One scan's outcome: `valid` means registered (result.json's "registered"), else "rejected" with the reason.
+/// One scan's outcome: `valid` means registered (result.json's "registered"), else "rejected" with the
+/// reason.
 struct ScanResult {
     std::string file;
     bool valid = false;
@@ -24,16 +25,17 @@ struct ScanResult {
     /// Maps scan points to the machine frame at the scan's axis values (where the fixed bodies are).
     Eigen::Isometry3d T_machine_scan = Eigen::Isometry3d::Identity();
     std::string reason;  ///< why it was rejected; empty when registered (result.json's "message")
-    std::vector<std::string> warnings;  ///< registered, but something a person should know (a fiducial left out)
+    std::vector<std::string>
+        warnings;  ///< registered, but something a person should know (a fiducial left out)
     /// Information of T_machine_scan (twist [w, v] in the machine frame) from the joint fit: JtJ / noise^2.
     Matrix6d information = Matrix6d::Zero();
     /// Each fiducial's share of the joint fit's JtJ (same frame and twist), in `fiducials`' order; empty when
     /// the scan was placed by one fiducial's fit without the joint one.
     std::vector<Matrix6d> JtJ_per_fiducial;
-    std::size_t points = 0;          ///< valid points in the scan
-    double point_spacing = 0.0;      ///< used for this scan (given or estimated), job units
-    double noise = 0.0;              ///< used for this scan (given or estimated), job units
-    std::vector<FiducialFit> fits;   ///< every fiducial tried
+    std::size_t points = 0;         ///< valid points in the scan
+    double point_spacing = 0.0;     ///< used for this scan (given or estimated), job units
+    double noise = 0.0;             ///< used for this scan (given or estimated), job units
+    std::vector<FiducialFit> fits;  ///< every fiducial tried
     double seconds = 0.0;
 };
 
@@ -43,7 +45,8 @@ struct Uncertainty {
     bool available = false;
     Eigen::Vector3d origin = Eigen::Vector3d::Zero();     ///< 95 % half-widths of origin x, y, z
     Eigen::Vector3d euler_deg = Eigen::Vector3d::Zero();  ///< 95 % half-widths of euler_xyz_deg a, b, c
-    Eigen::Vector3d origin_scans = Eigen::Vector3d::Zero(), euler_scans = Eigen::Vector3d::Zero();    ///< jackknife
+    Eigen::Vector3d origin_scans = Eigen::Vector3d::Zero(),
+                    euler_scans = Eigen::Vector3d::Zero();  ///< jackknife
     Eigen::Vector3d origin_probing = Eigen::Vector3d::Zero(), euler_probing = Eigen::Vector3d::Zero();
     /// The part of the jackknife's scatter that the probing explains (scans differing in their fiducials).
     Eigen::Vector3d origin_probing_in_scans = Eigen::Vector3d::Zero(),
@@ -71,8 +74,8 @@ struct JobResult {
     std::string units = "mm";
     std::vector<ScanResult> scans;
     WorkpieceResult workpiece;
-    std::shared_ptr<open3d::geometry::PointCloud> merged;            ///< machine frame, axes at 0
-    std::shared_ptr<open3d::geometry::TriangleMesh> stock;           ///< as-built workpiece
+    std::shared_ptr<open3d::geometry::PointCloud> merged;   ///< machine frame, axes at 0
+    std::shared_ptr<open3d::geometry::TriangleMesh> stock;  ///< as-built workpiece
     std::shared_ptr<open3d::geometry::TriangleMesh> final_part_located;
     /// What a person must look at before cutting (SPEC "Status with warnings"), one sentence each: the
     /// job's (Job::warnings, what reading its files found), then every scan's, named by the scan. A located

@@ -24,7 +24,9 @@ namespace partloc {
 namespace {
 
 using Clock = std::chrono::steady_clock;
-double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+double seconds_since(Clock::time_point t0) {
+    return std::chrono::duration<double>(Clock::now() - t0).count();
+}
 
 double median_of(std::vector<double> v) {
     std::sort(v.begin(), v.end());
@@ -44,7 +46,8 @@ void register_one(const Job& job, const JobPreparation& p, const Config& config,
     const PreparedScan ps = prepare_scan(*scan.points, scale, p.sampling, viewpoint);
     std::vector<PlacedFiducial> placed;
     for (std::size_t k = 0; k < job.fiducials.size(); ++k)
-        placed.push_back({job.fiducials[k].name, &p.models[k], fiducial_at(job.machine, job.fiducials[k], scan.axes)});
+        placed.push_back(
+            {job.fiducials[k].name, &p.models[k], fiducial_at(job.machine, job.fiducials[k], scan.axes)});
     reg = register_scan(ps, placed, config.candidates, config.registration);
     if (!reg.valid) return;
     // The scan's workpiece points, moved to the workpiece at the reference axis position (§3.4.2).
@@ -178,7 +181,8 @@ UncertaintyInputs uncertainty_inputs(const Job& job, const std::vector<ScanRegis
     // scan with points has them); for the datums' fit, which takes the merged points, every k-th of each
     // scan's workpiece points (the datums need not lie on the reference surfaces).
     const bool on_reference_fit = job.workpiece.fit != WorkpieceFitMode::Datums;
-    ui.scan_points_most = on_reference_fit ? config.uncertainty.scan_points : config.uncertainty.datum_scan_points;
+    ui.scan_points_most =
+        on_reference_fit ? config.uncertainty.scan_points : config.uncertainty.datum_scan_points;
     for (std::size_t i = 0; i < regs.size(); ++i) {
         if (!part.selection.registered[i] || !part.selection.in_fit[i]) continue;
         if (!on_reference_fit || !part.on_reference[i]) {
@@ -197,7 +201,8 @@ UncertaintyInputs uncertainty_inputs(const Job& job, const std::vector<ScanRegis
         std::vector<Eigen::Isometry3d> moved;
         for (std::size_t k : regs[i].fiducials) {
             const Fiducial& f = job.fiducials[k];
-            moved.push_back(job.machine.motion(f.moves_with, q) * job.machine.motion(f.moves_with, f.probed_at).inverse());
+            moved.push_back(job.machine.motion(f.moves_with, q) *
+                            job.machine.motion(f.moves_with, f.probed_at).inverse());
         }
         ui.scan_fiducial_motion.push_back(moved);
         ui.scan_fiducial_jtj.push_back(regs[i].JtJ_per_fiducial);
@@ -210,7 +215,8 @@ UncertaintyInputs uncertainty_inputs(const Job& job, const std::vector<ScanRegis
 
 void check_job(const Job& job) {
     if (job.fiducials.empty()) throw std::invalid_argument("the job has no fiducials");
-    for (const auto& f : job.fiducials) job.machine.motion(f.moves_with, f.probed_at);  // throws on an unknown axis
+    for (const auto& f : job.fiducials)
+        job.machine.motion(f.moves_with, f.probed_at);  // throws on an unknown axis
     job.machine.motion(job.workpiece.moves_with, {});
 }
 
@@ -263,11 +269,13 @@ void register_scans(const Job& job, const JobPreparation& prep, const RunSetting
         seconds[i] = seconds_since(ts);
         if (!settings.progress) return;
         std::string names;
-        for (const std::size_t k : regs[i].fiducials) names += (names.empty() ? "" : ",") + job.fiducials[k].name;
+        for (const std::size_t k : regs[i].fiducials)
+            names += (names.empty() ? "" : ",") + job.fiducials[k].name;
         const std::lock_guard<std::mutex> lock(told);
         ++finished;
-        settings.progress(format("scan %zu of %zu (%s, %.1f s): ", finished, n, job.scans[i].file.c_str(), seconds[i]) +
-                          (regs[i].valid ? "placed by fiducials " + names : "not placed: " + regs[i].reason));
+        settings.progress(
+            format("scan %zu of %zu (%s, %.1f s): ", finished, n, job.scans[i].file.c_str(), seconds[i]) +
+            (regs[i].valid ? "placed by fiducials " + names : "not placed: " + regs[i].reason));
     });
 }
 
@@ -296,7 +304,8 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     };
 
     // Prepare: each scan's scale, the global fit's sampling, the fiducials' models, the workpiece's region.
-    tell(format("preparing %zu fiducial models and measuring %zu scans", job.fiducials.size(), job.scans.size()));
+    tell(format("preparing %zu fiducial models and measuring %zu scans", job.fiducials.size(),
+                job.scans.size()));
     const JobPreparation prep = prepare_job(job, settings);
 
     // Register the scans (§3.4.1, in parallel; each scan's outcome depends on that scan alone).
@@ -335,7 +344,8 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     const Surface reference = make_surface(ref_samples, ref_spacing);
     in.reference = &reference;
     for (std::size_t i = 0; i < n; ++i)
-        in.part_at_scan.push_back(job.machine.motion(job.workpiece.moves_with, job.scans[i].axes) * reference.center);
+        in.part_at_scan.push_back(job.machine.motion(job.workpiece.moves_with, job.scans[i].axes) *
+                                  reference.center);
     PartFit part = fit_part(in, std::move(selection), config);
     write_scans(&part.selection);
     if (!part.selection.none_left.empty()) return done(part.reason);

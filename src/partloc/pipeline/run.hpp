@@ -25,10 +25,10 @@ class ModelStore {
 };
 
 struct RunSettings {
-    int threads = 0;         ///< 0: all cores. Results do not depend on it.
-    std::uint64_t seed = 1;  ///< seeds every random choice; same seed, same result
-    bool build_stock = true; ///< triangulate the merged workpiece points into result.stock
-    Config config;           ///< every tuning constant (pipeline/config.hpp)
+    int threads = 0;          ///< 0: all cores. Results do not depend on it.
+    std::uint64_t seed = 1;   ///< seeds every random choice; same seed, same result
+    bool build_stock = true;  ///< triangulate the merged workpiece points into result.stock
+    Config config;            ///< every tuning constant (pipeline/config.hpp)
     /// Prepared fiducial models kept between jobs; null: each job prepares its own (prepare_model).
     ModelStore* models = nullptr;
     /// Told, in a sentence, of each stage as it starts and of each scan as its registration ends (from the

@@ -24,7 +24,6 @@ Eigen::Vector3d euler_difference(const Eigen::Vector3d& a, const Eigen::Vector3d
     return Eigen::Vector3d(wrap_deg(a.x() - b.x()), wrap_deg(a.y() - b.y()), wrap_deg(a.z() - b.z()));
 }
 
-
 /// The adjoint of a rigid motion on twists [w, v] about the origin: the same motion of space, seen after T.
 Matrix6d adjoint(const Eigen::Isometry3d& T) {
     const Eigen::Matrix3d R = T.linear();
@@ -178,7 +177,8 @@ ProbingPaths probing_paths(const Job& job, const UncertaintyInputs& in) {
                                             : Matrix6d(Matrix6d::Identity() / static_cast<double>(ks.size()));
             const Eigen::Isometry3d G =
                 have_motion ? in.scan_fiducial_motion[i][slot] : Eigen::Isometry3d::Identity();
-            if (ks[slot] < paths.moves.size()) paths.moves[ks[slot]].emplace_back(i, adjoint(Q) * share * adjoint(G));
+            if (ks[slot] < paths.moves.size())
+                paths.moves[ks[slot]].emplace_back(i, adjoint(Q) * share * adjoint(G));
         }
     }
     return paths;
@@ -250,7 +250,8 @@ void estimate_uncertainty(const Job& job, const UncertaintyInputs& in, Workpiece
     const Matrix6d& info = in.information;
     Eigen::SelfAdjointEigenSolver<Matrix6d> es(info);
     if (es.eigenvalues()(0) > 0) {
-        const Matrix6d cov = es.eigenvectors() * es.eigenvalues().cwiseInverse().asDiagonal() * es.eigenvectors().transpose();
+        const Matrix6d cov =
+            es.eigenvectors() * es.eigenvalues().cwiseInverse().asDiagonal() * es.eigenvectors().transpose();
         std::tie(u.origin_noise, u.euler_noise) = sigmas_at(full.origin, cov);
     }
 

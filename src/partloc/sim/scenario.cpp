@@ -534,8 +534,8 @@ void disturb_probing(Job& job, std::uint64_t seed) {
         const auto box = f.model.mesh->GetAxisAlignedBoundingBox();
         const double half = 0.5 * (box.max_bound_ - box.min_bound_).norm();
         Vector6d xi;
-        xi << g(rng) * sigma / half, g(rng) * sigma / half, g(rng) * sigma / half, g(rng) * sigma, g(rng) * sigma,
-            g(rng) * sigma;
+        xi << g(rng) * sigma / half, g(rng) * sigma / half, g(rng) * sigma / half, g(rng) * sigma,
+            g(rng) * sigma, g(rng) * sigma;
         // About the block's centre: the rotation does not also shift it.
         const Eigen::Vector3d centre = f.T_machine_fiducial * box.GetCenter();
         Eigen::Isometry3d about = Eigen::Isometry3d::Identity();
