@@ -372,10 +372,12 @@ TEST(ReadBadInput, ReadersNeverPrint) {
     TempDir dir;
     // A compressed block of the right size whose content is not LZF: Open3D's decoder fails and logs.
     std::string milk = slurp(data("pcl_test/milk.pcd"));
+    ASSERT_NE(milk.find("DATA binary_compressed\n"), std::string::npos) << "no real data at " << data("");
     const std::size_t block = milk.find("DATA binary_compressed\n") + 23 + 8;
     for (std::size_t i = block; i < block + 2000; ++i) milk[i] = static_cast<char>(0xff);
     spit(dir / "corrupt.pcd", milk);
     const std::string ply = slurp(data("small_gicp/source.ply"));
+    ASSERT_FALSE(ply.empty()) << "no real data at " << data("");
     spit(dir / "cut.ply", ply.substr(0, ply.size() / 2));
     testing::internal::CaptureStdout();
     testing::internal::CaptureStderr();
