@@ -186,12 +186,14 @@ int find_property(const PlyElement& e, std::initializer_list<const char*> names)
 
 }  // namespace
 
-RawGeometry parse_ply(std::string_view bytes, const std::string& name) {
-    LineReader lines(bytes);
-    std::string_view line;
-    if (!lines.next(line) || line != "ply")
-        throw InputError(name, "not a PLY file (it does not start with 'ply')");
+/// A PLY header after its first line: the encoding and the elements with their properties.
+struct PlyHeader {
+    PlyEncoding encoding = PlyEncoding::Ascii;
+    std::vector<PlyElement> elements;
+};
 
+PlyHeader parse_ply_header(LineReader& lines, const std::string& name) {
+    std::string_view line;
     PlyEncoding encoding = PlyEncoding::Ascii;
     bool have_format = false, have_end = false;
     std::vector<PlyElement> elements;
@@ -243,6 +245,18 @@ RawGeometry parse_ply(std::string_view bytes, const std::string& name) {
     }
     if (!have_end) throw InputError(name, "PLY header has no end_header (the file is truncated or not PLY)");
     if (!have_format) throw InputError(name, "PLY header has no format line");
+    return {encoding, std::move(elements)};
+}
+
+RawGeometry parse_ply(std::string_view bytes, const std::string& name) {
+    LineReader lines(bytes);
+    std::string_view line;
+    if (!lines.next(line) || line != "ply")
+        throw InputError(name, "not a PLY file (it does not start with 'ply')");
+
+    const PlyHeader header = parse_ply_header(lines, name);
+    const PlyEncoding encoding = header.encoding;
+    const std::vector<PlyElement>& elements = header.elements;
 
     RawGeometry g;
     bool have_vertices = false;
