@@ -8,6 +8,7 @@ int main(int argc, char** argv) {
     if (argc != 3) return 2;
     // [readme]
     const partloc::Job job = partloc::io::load_job(argv[1]);
+    partloc::io::check_job_geometry(job, argv[1]);  // degenerate data refused, as `partloc run` does
     const partloc::JobResult result = partloc::run_job(job);  // RunSettings: threads, seed, config
     partloc::io::write_outputs(argv[2], job, result);
     if (!result.workpiece.valid) {

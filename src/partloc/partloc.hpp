@@ -2,8 +2,9 @@
 // partloc as a library: this one header, and the CMake target partloc::partloc.
 //
 // Two levels (examples/locate.cpp uses both):
-// - a whole job: io::load_job reads job.yaml and its files, run_job locates the workpiece, io::write_outputs
-//   writes result.json, merged.ply, stock.stl and report.html;
+// - a whole job: io::load_job reads job.yaml and its files, io::check_job_geometry refuses degenerate data
+//   (planar scans, tiny fiducials: what partloc run refuses), run_job locates the workpiece,
+//   io::write_outputs writes result.json, merged.ply, stock.stl and report.html;
 // - the parts: prepare_job (every scan's scale, the fiducials' prepared models), prepare_scan and
 //   register_scan (one scan by the fiducials placed at its axis values), fit_reference_surfaces (the part
 //   from registered points, machine0).
