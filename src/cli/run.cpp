@@ -93,10 +93,11 @@ bool telling(Progress p) {
 int command_run(const std::string& job_file, const std::string& out_dir, int threads, std::uint64_t seed,
                 const std::string& cache_dir, bool cache, Progress progress) {
     open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
+    const bool tell = telling(progress);
 
     Job job;
     try {
-        if (telling(progress)) std::cerr << "partloc: reading " << job_file << " and its files" << std::endl;
+        if (tell) std::cerr << "partloc: reading " << job_file << " and its files" << std::endl;
         job = io::load_job(job_file, io::LoadOptions{threads});
         io::check_job_geometry(job, job_file);
     } catch (const io::InputError& e) {
@@ -137,7 +138,7 @@ int command_run(const std::string& job_file, const std::string& out_dir, int thr
         settings.threads = threads;
         settings.seed = seed;
         settings.models = models ? &*models : nullptr;
-        if (telling(progress))
+        if (tell)
             settings.progress = [](const std::string& what) {
                 std::cerr << "partloc: " << what << std::endl;
             };

@@ -500,10 +500,10 @@ void JobParser::parse_output(const YAML::Node& root, Job& job) {
     if (const YAML::Node o = root["output"]; o.IsDefined() && !o.IsNull()) {
         check_map(o, "output", {"offsets", "work_offset"});
         if (const YAML::Node d = o["offsets"]; d.IsDefined() && !d.IsNull()) {
-            const char* known = "fanuc, siemens, heidenhain, linuxcnc";
+            const std::string known = known_dialects();
             if (!d.IsSequence())
                 fail(d, "output.offsets",
-                     std::string("expected a list of dialects (") + known + "), found " + describe(d));
+                     "expected a list of dialects (" + known + "), found " + describe(d));
             for (std::size_t i = 0; i < d.size(); ++i) {
                 const std::string at = "output.offsets[" + std::to_string(i) + "]";
                 const std::string name = text(d[i], at);

@@ -261,42 +261,50 @@ Eigen::Vector3d far_corner(const ModelSource& m, const Eigen::Isometry3d& T_mach
 
 }  // namespace
 
+namespace {
+
+/// Each dialect's name in the job file and its file in DIR/offsets, in one table.
+struct DialectNames {
+    OffsetDialect dialect;
+    const char* name;
+    const char* file;
+};
+constexpr DialectNames kDialects[] = {{OffsetDialect::Fanuc, "fanuc", "fanuc.nc"},
+                                      {OffsetDialect::Siemens, "siemens", "siemens.mpf"},
+                                      {OffsetDialect::Heidenhain, "heidenhain", "heidenhain.h"},
+                                      {OffsetDialect::LinuxCnc, "linuxcnc", "linuxcnc.ngc"}};
+
+const DialectNames* names_of(OffsetDialect d) {
+    for (const auto& n : kDialects)
+        if (n.dialect == d) return &n;
+    return nullptr;
+}
+
+}  // namespace
+
 std::string dialect_name(OffsetDialect d) {
-    switch (d) {
-        case OffsetDialect::Fanuc:
-            return "fanuc";
-        case OffsetDialect::Siemens:
-            return "siemens";
-        case OffsetDialect::Heidenhain:
-            return "heidenhain";
-        case OffsetDialect::LinuxCnc:
-            return "linuxcnc";
-    }
-    return "";
+    const DialectNames* n = names_of(d);
+    return n ? n->name : "";
 }
 
 bool parse_dialect(const std::string& name, OffsetDialect& d) {
-    for (OffsetDialect c :
-         {OffsetDialect::Fanuc, OffsetDialect::Siemens, OffsetDialect::Heidenhain, OffsetDialect::LinuxCnc})
-        if (dialect_name(c) == name) {
-            d = c;
+    for (const auto& n : kDialects)
+        if (name == n.name) {
+            d = n.dialect;
             return true;
         }
     return false;
 }
 
 std::string dialect_file(OffsetDialect d) {
-    switch (d) {
-        case OffsetDialect::Fanuc:
-            return "fanuc.nc";
-        case OffsetDialect::Siemens:
-            return "siemens.mpf";
-        case OffsetDialect::Heidenhain:
-            return "heidenhain.h";
-        case OffsetDialect::LinuxCnc:
-            return "linuxcnc.ngc";
-    }
-    return "";
+    const DialectNames* n = names_of(d);
+    return n ? n->file : "";
+}
+
+std::string known_dialects() {
+    std::string all;
+    for (const auto& n : kDialects) all += (all.empty() ? "" : ", ") + std::string(n.name);
+    return all;
 }
 
 WorkOffsetFile write_work_offset(OffsetDialect d, const Eigen::Isometry3d& T, const OffsetSettings& s) {

@@ -42,6 +42,8 @@ std::string dialect_name(OffsetDialect d);
 bool parse_dialect(const std::string& name, OffsetDialect& d);
 /// The file in DIR/offsets/: fanuc.nc, siemens.mpf, heidenhain.h, linuxcnc.ngc.
 std::string dialect_file(OffsetDialect d);
+/// Every dialect's name, comma-separated, for the loader's messages.
+std::string known_dialects();
 
 /// The work offset numbers every dialect takes: 1..6 (G54..G59; Siemens G54..G57, G505, G506).
 constexpr int kMaxWorkOffset = 6;
