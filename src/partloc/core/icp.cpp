@@ -91,6 +91,24 @@ Normal accumulate(const std::vector<Eigen::Vector3d>& source, const Surface& tar
     return sum;
 }
 
+/// S with S J = [(p - c) x n / L, n] for J = [p x n, n]: the Jacobian of the twist [L w, v] about c.
+Matrix6d centred_scaled(const Eigen::Vector3d& c, double L) {
+    Matrix6d S = Matrix6d::Identity();
+    S.topLeftCorner<3, 3>() /= L;
+    S.topRightCorner<3, 3>() = -skew(c) / L;
+    return S;
+}
+
+/// The motion of the twist [L w, v] about c: q -> R(w) (q - c) + c + v.
+Eigen::Isometry3d motion_about(const Vector6d& step, const Eigen::Vector3d& c, double L) {
+    Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
+    const Eigen::Vector3d w = step.head<3>() / L;
+    const double theta = w.norm();
+    if (theta > 1e-15) X.linear() = Eigen::AngleAxisd(theta, w / theta).toRotationMatrix();
+    X.translation() = c - X.linear() * c + step.tail<3>();
+    return X;
+}
+
 }  // namespace
 
 IcpResult icp_point_to_plane(const std::vector<Eigen::Vector3d>& source, const Surface& target,
@@ -101,6 +119,7 @@ IcpResult icp_point_to_plane(const std::vector<Eigen::Vector3d>& source, const S
     IcpResult result;
     Eigen::Isometry3d T = init;
     const double scale = std::max(target.diameter, 1e-9);
+    const double L = 0.5 * scale;
     bool all_converged = true;
     const auto approximate_at = [&](double max_distance) {
         return target.coarse && max_distance >= settings.approximate_from &&
@@ -124,12 +143,20 @@ IcpResult icp_point_to_plane(const std::vector<Eigen::Vector3d>& source, const S
                 result.converged = false;
                 return result;
             }
-            // Levenberg-style damping keeps directions the data leave free (a plane seen alone) still.
-            Matrix6d A = sys.A;
-            A.diagonal().array() += 1e-9 * A.trace() + 1e-12;
-            const Vector6d xi = A.ldlt().solve(sys.b);
-            T = twist_exp(xi) * T;
-            if (xi.head<3>().norm() + xi.tail<3>().norm() / scale < settings.min_step) {
+            // The step is solved about the target's centre with rotations scaled by its half-diameter
+            // (the twist [L w, v] of q -> R(w) (q - c) + c + v), so that the system's two blocks are alike
+            // in size in any units and wherever the part sits. Levenberg-style damping, a fixed fraction of
+            // that system's trace, keeps directions the data leave free (a plane seen alone) still. It was
+            // 1e-9 of the trace of the system about the machine's origin: its rotation block grows with the
+            // square of the coordinates, so in micrometres the damping outweighed the translations and the
+            // fit stopped short of the optimum (issue 25: a world-2 cell registered 0 of 6 scans in um, 5 in
+            // m).
+            const Matrix6d S = centred_scaled(target.center, L);
+            Matrix6d A = S * sys.A * S.transpose();
+            A.diagonal().array() += 1e-9 * A.trace();
+            const Vector6d step = A.ldlt().solve(S * sys.b);
+            T = motion_about(step, target.center, L) * T;
+            if (step.head<3>().norm() / L + step.tail<3>().norm() / scale < settings.min_step) {
                 converged = true;
                 break;
             }
