@@ -12,6 +12,7 @@
 
 #include "partloc/core/icp.hpp"
 #include "partloc/core/normals.hpp"
+#include "partloc/core/visible_surface.hpp"
 
 namespace partloc {
 
@@ -64,6 +65,26 @@ PreparedScan prepare_scan(const open3d::geometry::PointCloud& points, const Scal
     return s;
 }
 
+namespace {
+
+/// The samples of `mesh` that can be seen from outside it; all of them when none can (a mesh that hides
+/// everything is not a solid's surface, and is left to the fit as it is).
+std::shared_ptr<open3d::geometry::PointCloud> visible_part(
+    std::shared_ptr<open3d::geometry::PointCloud> samples, const open3d::geometry::TriangleMesh& mesh) {
+    const std::vector<char> visible = visible_from_outside(mesh, samples->points_, samples->normals_);
+    if (std::find(visible.begin(), visible.end(), 1) == visible.end()) return samples;
+    if (std::find(visible.begin(), visible.end(), 0) == visible.end()) return samples;
+    auto kept = std::make_shared<open3d::geometry::PointCloud>();
+    for (std::size_t i = 0; i < visible.size(); ++i) {
+        if (!visible[i]) continue;
+        kept->points_.push_back(samples->points_[i]);
+        kept->normals_.push_back(samples->normals_[i]);
+    }
+    return kept;
+}
+
+}  // namespace
+
 PreparedModel prepare_model(const std::string& name, const open3d::geometry::TriangleMesh* mesh,
                             const open3d::geometry::PointCloud* points, double dense_spacing,
                             double sampling) {
@@ -72,8 +93,9 @@ PreparedModel prepare_model(const std::string& name, const open3d::geometry::Tri
     m.sampling = sampling;
     std::shared_ptr<open3d::geometry::PointCloud> dense, coarse;
     if (mesh && !mesh->triangles_.empty()) {
-        dense = sample_mesh(*mesh, dense_spacing);
-        coarse = sample_mesh(*mesh, sampling);
+        // What a scanner can see of it: samples on faces inside the solid are dropped (visible_surface.hpp).
+        dense = visible_part(sample_mesh(*mesh, dense_spacing), *mesh);
+        coarse = visible_part(sample_mesh(*mesh, sampling), *mesh);
     } else if (points && !points->points_.empty()) {
         dense = std::make_shared<open3d::geometry::PointCloud>();
         dense->points_ = points->points_;

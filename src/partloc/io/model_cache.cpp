@@ -18,7 +18,7 @@ namespace fs = std::filesystem;
 
 namespace {
 
-constexpr char kMagic[16] = "partloc-model-1";  // 15 characters and the terminating zero
+constexpr char kMagic[16] = "partloc-model-2";  // 15 characters and the terminating zero
 constexpr std::size_t kDigest = 32;             // SHA-256
 constexpr std::size_t kHeader = sizeof kMagic + 2 * kDigest + 8;
 
