@@ -91,7 +91,9 @@ Normal accumulate(const std::vector<Eigen::Vector3d>& source, const Surface& tar
     return sum;
 }
 
-/// S with S J = [(p - c) x n / L, n] for J = [p x n, n]: the Jacobian of the twist [L w, v] about c.
+}  // namespace
+
+// S with S J = [(p - c) x n / L, n] for J = [p x n, n]: the Jacobian of the twist [L w, v] about c.
 Matrix6d centred_scaled(const Eigen::Vector3d& c, double L) {
     Matrix6d S = Matrix6d::Identity();
     S.topLeftCorner<3, 3>() /= L;
@@ -99,7 +101,7 @@ Matrix6d centred_scaled(const Eigen::Vector3d& c, double L) {
     return S;
 }
 
-/// The motion of the twist [L w, v] about c: q -> R(w) (q - c) + c + v.
+// The motion of the twist [L w, v] about c: q -> R(w) (q - c) + c + v.
 Eigen::Isometry3d motion_about(const Vector6d& step, const Eigen::Vector3d& c, double L) {
     Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
     const Eigen::Vector3d w = step.head<3>() / L;
@@ -108,8 +110,6 @@ Eigen::Isometry3d motion_about(const Vector6d& step, const Eigen::Vector3d& c, d
     X.translation() = c - X.linear() * c + step.tail<3>();
     return X;
 }
-
-}  // namespace
 
 IcpResult icp_point_to_plane(const std::vector<Eigen::Vector3d>& source, const Surface& target,
                              const Eigen::Isometry3d& init, const IcpSettings& settings,

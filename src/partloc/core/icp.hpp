@@ -48,6 +48,13 @@ IcpResult icp_point_to_plane(const std::vector<Eigen::Vector3d>& source, const S
                              const Eigen::Isometry3d& init, const IcpSettings& settings,
                              const std::vector<Eigen::Vector3d>* source_normals = nullptr);
 
+/// S with S J = [(p - c) x n / L, n] for J = [p x n, n]: the Jacobian of the twist [L w, v] about c, in which
+/// rotations and translations weigh alike in any units (S JtJ S^T is the system in that twist).
+Matrix6d centred_scaled(const Eigen::Vector3d& c, double L);
+
+/// The motion of the twist [L w, v] about c: q -> R(w) (q - c) + c + v.
+Eigen::Isometry3d motion_about(const Vector6d& step, const Eigen::Vector3d& c, double L);
+
 /// exp of a twist [w, v] as a rigid transform.
 Eigen::Isometry3d twist_exp(const Vector6d& xi);
 

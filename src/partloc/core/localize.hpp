@@ -106,6 +106,14 @@ struct LocalizeSettings {
     /// about 1/3 for Gaussian noise, 0.58 for residuals spread evenly, as a wrong fit's are.
     double max_rmse = 0.5;
     double ambiguity = 0.8;  ///< a distinct pose with this fraction of the best inliers: ambiguous
+    /// Restarts of an accepted fit along its least held direction, 1..slide_restarts samplings each way
+    /// (0: none). A restart that ends within slide_distance samplings and slide_angle_deg is the same pose;
+    /// one apart that explains more of the scan (support) replaces the fit, and of the two the better is
+    /// rejected ("slides") when the other has slide_tie of its support.
+    int slide_restarts = 2;
+    double slide_distance = 0.25;
+    double slide_angle_deg = 0.5;
+    double slide_tie = 0.97;
     /// Points around a candidate that its screening fit and its fine fit take, and its polish at most (before
     /// those far from the surface are dropped): a thousand or two fix a pose far inside the checks above.
     std::size_t screen_points = 1500;
