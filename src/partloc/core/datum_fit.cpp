@@ -7,6 +7,8 @@
 #include <cmath>
 #include <cstdio>
 
+#include "partloc/core/icp.hpp"
+
 namespace partloc {
 
 namespace {
@@ -134,15 +136,6 @@ Vector6d solve(const Systems& sys, const std::vector<Vector6d>& g, const Hierarc
     return delta;
 }
 
-/// The motion of a scaled twist [L w, v] about c: q -> R(w) (q - c) + c + v.
-Eigen::Isometry3d motion(const Vector6d& delta, const Frame& f) {
-    Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
-    const Eigen::Vector3d w = delta.head<3>() / f.L;
-    if (w.norm() > 1e-15) X.linear() = Eigen::AngleAxisd(w.norm(), w.normalized()).toRotationMatrix();
-    X.translation() = f.c - X.linear() * f.c + delta.tail<3>();
-    return X;
-}
-
 Frame frame_of(const std::vector<DatumSurface>& datums) {
     Eigen::AlignedBox3d box;
     for (const auto& d : datums)
@@ -245,7 +238,7 @@ DatumFit fit_datums(const std::vector<Eigen::Vector3d>& merged, const std::vecto
             std::vector<Vector6d> g;
             for (const auto& s : sys) g.push_back(s.g);
             const Vector6d delta = solve(sys, g, h);
-            T = motion(delta, f) * T;
+            T = motion_about(delta, f.c, f.L) * T;
             if (delta.head<3>().norm() / f.L + delta.tail<3>().norm() / f.L < st.min_step) {
                 converged = true;
                 break;

@@ -71,14 +71,7 @@ WorkpieceFit fit_reference_surfaces(const std::vector<Eigen::Vector3d>& merged, 
     fit.JtJ = icp.JtJ;
     // Conditioning as in verify_pose: rotations scaled by half the diameter about the centre.
     if (icp.inliers) {
-        Matrix6d S = Matrix6d::Identity();
-        const double L = std::max(D / 2.0, 1e-12);
-        // J_c = [ (p - c) x n / L ; n ] = [ (p x n - c x n) / L ; n ]  =>  J_c = A J with A below.
-        Eigen::Matrix3d C;
-        C << 0, -reference.center.z(), reference.center.y(), reference.center.z(), 0, -reference.center.x(),
-            -reference.center.y(), reference.center.x(), 0;
-        S.topLeftCorner<3, 3>() = Eigen::Matrix3d::Identity() / L;
-        S.topRightCorner<3, 3>() = -C / L;
+        const Matrix6d S = centred_scaled(reference.center, std::max(D / 2.0, 1e-12));
         const Matrix6d N = S * icp.JtJ * S.transpose() / static_cast<double>(icp.inliers);
         Eigen::SelfAdjointEigenSolver<Matrix6d> es(N);
         fit.conditioning = std::max(0.0, es.eigenvalues()(0));
