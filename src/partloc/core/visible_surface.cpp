@@ -1,49 +1,25 @@
 #include "partloc/core/visible_surface.hpp"
 
-#include <embree3/rtcore.h>
 #include <tbb/parallel_for.h>
 
 #include <cmath>
-#include <limits>
-#include <mutex>
-#include <stdexcept>
-#include <string>
+
+#include "partloc/core/embree.hpp"
 
 namespace partloc {
 
 namespace {
 
-/// One Embree device for the process, created on first use.
-RTCDevice device() {
-    static std::once_flag once;
-    static RTCDevice d = nullptr;
-    std::call_once(once, [] { d = rtcNewDevice(nullptr); });
-    if (!d) throw std::runtime_error("Embree: could not create a device");
-    return d;
-}
-
 /// The mesh as an Embree scene (float: the offset below is far above its precision).
 class Scene {
   public:
-    explicit Scene(const open3d::geometry::TriangleMesh& mesh) {
-        scene_ = rtcNewScene(device());
-        RTCGeometry geom = rtcNewGeometry(device(), RTC_GEOMETRY_TYPE_TRIANGLE);
-        auto* vb = static_cast<float*>(rtcSetNewGeometryBuffer(
-            geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), mesh.vertices_.size()));
-        auto* ib = static_cast<unsigned*>(rtcSetNewGeometryBuffer(
-            geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(unsigned), mesh.triangles_.size()));
-        if (!vb || !ib) {
-            rtcReleaseGeometry(geom);
+    explicit Scene(const open3d::geometry::TriangleMesh& mesh) : scene_(rtcNewScene(embree::device())) {
+        try {
+            embree::attach_triangles(scene_, mesh.vertices_, mesh.triangles_, 0);
+        } catch (...) {
             rtcReleaseScene(scene_);
-            throw std::runtime_error("Embree: could not allocate a geometry buffer");
+            throw;
         }
-        for (std::size_t i = 0; i < mesh.vertices_.size(); ++i)
-            for (int k = 0; k < 3; ++k) vb[3 * i + k] = static_cast<float>(mesh.vertices_[i][k]);
-        for (std::size_t t = 0; t < mesh.triangles_.size(); ++t)
-            for (int k = 0; k < 3; ++k) ib[3 * t + k] = static_cast<unsigned>(mesh.triangles_[t][k]);
-        rtcCommitGeometry(geom);
-        rtcAttachGeometry(scene_, geom);
-        rtcReleaseGeometry(geom);
         rtcCommitScene(scene_);
     }
     ~Scene() { rtcReleaseScene(scene_); }
@@ -54,25 +30,13 @@ class Scene {
     bool occluded(const Eigen::Vector3d& o, const Eigen::Vector3d& d) const {
         RTCIntersectContext context;
         rtcInitIntersectContext(&context);
-        RTCRay ray;
-        ray.org_x = static_cast<float>(o.x());
-        ray.org_y = static_cast<float>(o.y());
-        ray.org_z = static_cast<float>(o.z());
-        ray.dir_x = static_cast<float>(d.x());
-        ray.dir_y = static_cast<float>(d.y());
-        ray.dir_z = static_cast<float>(d.z());
-        ray.tnear = 0.0f;
-        ray.tfar = std::numeric_limits<float>::infinity();
-        ray.time = 0.0f;
-        ray.mask = static_cast<unsigned>(-1);  // Debian's Embree tests the mask: 0 would hit nothing
-        ray.id = 0;
-        ray.flags = 0;
+        RTCRay ray = embree::ray(o, d);
         rtcOccluded1(scene_, &context, &ray);
         return ray.tfar < 0.0f;  // Embree marks an occluded ray with tfar = -inf
     }
 
   private:
-    RTCScene scene_ = nullptr;
+    RTCScene scene_;
 };
 
 /// n directions spread evenly over the unit sphere (a Fibonacci lattice).

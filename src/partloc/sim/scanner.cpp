@@ -1,14 +1,12 @@
 #include "partloc/sim/scanner.hpp"
 
-#include <embree3/rtcore.h>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
 #include <cmath>
-#include <mutex>
-#include <stdexcept>
 #include <string>
 
+#include "partloc/core/embree.hpp"
 #include "partloc/sim/random.hpp"
 
 namespace partloc::sim {
@@ -16,24 +14,6 @@ namespace partloc::sim {
 namespace {
 
 constexpr double kDeg = M_PI / 180.0;
-
-/// One Embree device for the process, created on first use.
-RTCDevice embree_device() {
-    static std::once_flag once;
-    static RTCDevice device = nullptr;
-    std::call_once(once, [] {
-        device = rtcNewDevice(nullptr);
-        if (!device) throw std::runtime_error("Embree: could not create a device");
-    });
-    return device;
-}
-
-void check_embree(const char* what) {
-    const RTCError e = rtcGetDeviceError(embree_device());
-    if (e != RTC_ERROR_NONE)
-        throw std::runtime_error(std::string("Embree: ") + what + " failed (error " +
-                                 std::to_string(static_cast<int>(e)) + ")");
-}
 
 }  // namespace
 
@@ -52,8 +32,7 @@ struct RayScene::Impl {
 RayScene::RayScene(const Cell& cell, const AxisValues& q) : impl_(std::make_unique<Impl>()) {
     impl_->cell = &cell;
     impl_->q = q;
-    RTCDevice device = embree_device();
-    impl_->scene = rtcNewScene(device);
+    impl_->scene = rtcNewScene(embree::device());
     rtcSetSceneBuildQuality(impl_->scene, RTC_BUILD_QUALITY_HIGH);
     impl_->vertices.resize(cell.bodies.size());
     for (std::size_t b = 0; b < cell.bodies.size(); ++b) {
@@ -62,27 +41,10 @@ RayScene::RayScene(const Cell& cell, const AxisValues& q) : impl_(std::make_uniq
         auto& V = impl_->vertices[b];
         V.reserve(body.mesh->vertices_.size());
         for (const auto& v : body.mesh->vertices_) V.push_back(T * v);
-        RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
-        auto* vb = static_cast<float*>(rtcSetNewGeometryBuffer(
-            geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), V.size()));
-        auto* ib = static_cast<unsigned*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0,
-                                                                  RTC_FORMAT_UINT3, 3 * sizeof(unsigned),
-                                                                  body.mesh->triangles_.size()));
-        if (!vb || !ib) {
-            rtcReleaseGeometry(geom);
-            check_embree("allocating a geometry buffer");
-            throw std::runtime_error("Embree: could not allocate a geometry buffer");
-        }
-        for (std::size_t i = 0; i < V.size(); ++i)
-            for (int k = 0; k < 3; ++k) vb[3 * i + k] = static_cast<float>(V[i][k]);
-        for (std::size_t t = 0; t < body.mesh->triangles_.size(); ++t)
-            for (int k = 0; k < 3; ++k) ib[3 * t + k] = static_cast<unsigned>(body.mesh->triangles_[t][k]);
-        rtcCommitGeometry(geom);
-        rtcAttachGeometryByID(impl_->scene, geom, static_cast<unsigned>(b));
-        rtcReleaseGeometry(geom);
+        embree::attach_triangles(impl_->scene, V, body.mesh->triangles_, static_cast<unsigned>(b));
     }
     rtcCommitScene(impl_->scene);
-    check_embree("building the scene");
+    embree::check("building the scene");
 }
 
 RayScene::~RayScene() = default;
@@ -97,18 +59,7 @@ RayScene::Hit RayScene::intersect(const Eigen::Vector3d& origin, const Eigen::Ve
     RTCIntersectContext context;
     rtcInitIntersectContext(&context);
     RTCRayHit rh;
-    rh.ray.org_x = static_cast<float>(origin.x());
-    rh.ray.org_y = static_cast<float>(origin.y());
-    rh.ray.org_z = static_cast<float>(origin.z());
-    rh.ray.dir_x = static_cast<float>(d.x());
-    rh.ray.dir_y = static_cast<float>(d.y());
-    rh.ray.dir_z = static_cast<float>(d.z());
-    rh.ray.tnear = 0.0f;
-    rh.ray.tfar = std::numeric_limits<float>::infinity();
-    rh.ray.time = 0.0f;
-    rh.ray.mask = static_cast<unsigned>(-1);  // Debian's Embree tests the mask: 0 would hit nothing
-    rh.ray.id = 0;
-    rh.ray.flags = 0;
+    rh.ray = embree::ray(origin, d);
     rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
     rh.hit.primID = RTC_INVALID_GEOMETRY_ID;
     rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
