@@ -22,19 +22,12 @@ using namespace partloc;
 
 namespace {
 
-std::shared_ptr<const open3d::geometry::TriangleMesh> scaled(
-    const std::shared_ptr<const open3d::geometry::TriangleMesh>& m, double k) {
-    if (!m) return m;
-    auto s = std::make_shared<open3d::geometry::TriangleMesh>(*m);
-    for (auto& v : s->vertices_) v *= k;
-    return s;
-}
-
-std::shared_ptr<const open3d::geometry::PointCloud> scaled(
-    const std::shared_ptr<const open3d::geometry::PointCloud>& c, double k) {
-    if (!c) return c;
-    auto s = std::make_shared<open3d::geometry::PointCloud>(*c);
-    for (auto& p : s->points_) p *= k;
+/// A copy of a mesh or a cloud with every coordinate times k (the scale about the origin).
+template <typename Geometry>
+std::shared_ptr<const Geometry> scaled(const std::shared_ptr<const Geometry>& g, double k) {
+    if (!g) return g;
+    auto s = std::make_shared<Geometry>(*g);
+    s->Scale(k, Eigen::Vector3d::Zero());
     return s;
 }
 
