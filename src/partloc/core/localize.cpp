@@ -375,13 +375,13 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
     // slid 1.2-3.6 mm along a narrow face's normal, rotation right, passed every check). From the fit moved
     // by one and two samplings each way along that direction the fit is made again: a pose that explains
     // more of the scan replaces it; one as good as it but apart leaves the direction undecided (rejected).
-    const auto settle_slides = [&](FiducialFit f, const std::vector<Eigen::Vector3d>& local_all) {
+    const auto settle_slides = [&](FiducialFit first, const std::vector<Eigen::Vector3d>& local_all) {
         const double L = 0.5 * model.dense.diameter;
         const Matrix6d S = centred_scaled(model.dense.center, L);
-        const Eigen::SelfAdjointEigenSolver<Matrix6d> es(S * f.JtJ * S.transpose());
+        const Eigen::SelfAdjointEigenSolver<Matrix6d> es(S * first.JtJ * S.transpose());
         const Vector6d weakest = es.eigenvectors().col(0);
-        const FiducialFit first = f;
         std::optional<FiducialFit> rival;  // the best valid fit apart from the first
+        double apart = 0.0;                // its distance from the first
         for (int k = 1; k <= st.slide_restarts; ++k)
             for (const double sign : {1.0, -1.0}) {
                 const Vector6d step = sign * k * s * weakest;
@@ -391,22 +391,22 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
                 if (!r.valid) continue;
                 const PoseError e = pose_error(r.T_scan_fiducial, first.T_scan_fiducial);
                 if (e.translation < st.slide_distance * s && e.rotation_deg < st.slide_angle_deg) continue;
-                if (!rival || support(r) > support(*rival)) rival = std::move(r);
+                if (!rival || support(r) > support(*rival)) {
+                    rival = std::move(r);
+                    apart = e.translation;
+                }
             }
-        if (!rival) return f;
-        const bool moved = support(*rival) > support(first);
-        FiducialFit best = moved ? *rival : first;
-        const FiducialFit& other = moved ? first : *rival;
-        // The best pose found, unless another one apart explains the scan about as well.
-        if (support(other) >= st.slide_tie * support(best)) {
-            best.valid = false;
-            best.reason =
+        if (!rival) return first;
+        // The better pose, unless the other explains the scan about as well.
+        if (support(*rival) > support(first)) std::swap(first, *rival);
+        if (support(*rival) >= st.slide_tie * support(first)) {
+            first.valid = false;
+            first.reason =
                 fmt("slides: two poses %.3g apart along its least held direction fit about equally "
                     "well (%.0f%% of the support)",
-                    pose_error(rival->T_scan_fiducial, first.T_scan_fiducial).translation,
-                    100.0 * support(other) / support(best));
+                    apart, 100.0 * support(*rival) / support(first));
         }
-        return best;
+        return first;
     };
     std::vector<FiducialFit> fits;
     for (std::size_t i = 0; i < screened.size() && static_cast<int>(i) < st.verified; ++i) {
