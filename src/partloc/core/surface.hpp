@@ -100,9 +100,11 @@ Surface compose_surfaces(const std::vector<const Surface*>& parts,
 
 /// Paper §3.2 step 5 (MeshLab's Poisson-disk filter): samples the mesh surface with Poisson-disk sampling,
 /// about one sample per `spacing`^2 of surface and no two closer than 0.8 `spacing`, with the triangles' own
-/// normals (outward for a closed mesh). Deterministic.
+/// normals (outward for a closed mesh). Deterministic. `triangles`, when given, receives each sample's
+/// triangle.
 std::shared_ptr<open3d::geometry::PointCloud> sample_mesh(const open3d::geometry::TriangleMesh& mesh,
-                                                          double spacing);
+                                                          double spacing,
+                                                          std::vector<int>* triangles = nullptr);
 
 /// Total area of a mesh's triangles.
 double mesh_area(const open3d::geometry::TriangleMesh& mesh);
