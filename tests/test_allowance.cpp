@@ -10,6 +10,7 @@
 #include "partloc/core/allowance.hpp"
 #include "partloc/core/normals.hpp"
 #include "partloc/core/placement.hpp"
+#include "partloc/pipeline/machining.hpp"
 
 namespace partloc {
 namespace {
@@ -299,6 +300,59 @@ TEST(Placement, InsufficientStockSaysWhere) {
     ASSERT_GE(p.map.min_face, 0);
     // The least allowance is on one of the four sides, not the top.
     EXPECT_LT(std::abs(part.faces[p.map.min_face].normal.z()), 0.1);
+}
+
+// The pipeline's stage on a job: the final part placed by maxmin (translations, limited), the placed frame
+// the datum frame moved, the placed mesh where the samples are, the unscanned bottom warned of, and the
+// required allowance that the stock cannot give named.
+TEST(Machining, PlanOnAJobPlacesWarnsAndNamesWhere) {
+    const Cell cell = make_cell({0.4, 1.2, 0.8, 0.6, 1.0}, Eigen::Matrix3d::Identity());
+    open3d::geometry::PointCloud merged;
+    merged.points_ = cell.stock.points;
+    merged.normals_ = cell.stock.normals;
+    Job job;
+    job.workpiece.final_part = ModelSource{"part.stl", cell.part, nullptr};
+    job.workpiece.T_machine_workpiece.translation() = Eigen::Vector3d(10, 0, 0);
+    job.workpiece.placement.maxmin = true;
+    job.workpiece.placement.free = {true, true, true, false, false, false};
+    job.workpiece.placement.max_translation = 1.0;
+    job.workpiece.allowance_min = 0.5;
+    const Eigen::Isometry3d I = Eigen::Isometry3d::Identity();
+    const MachiningResult m =
+        plan_machining(job, merged, I, job.workpiece.T_machine_workpiece, kSpacing, kNoise);
+    ASSERT_TRUE(m.available) << m.reason;
+    EXPECT_TRUE(m.maxmin);
+    EXPECT_TRUE(m.fits);
+    EXPECT_NEAR(m.located.all.min, 0.4, 0.02);
+    EXPECT_NEAR(m.map.all.min, 0.7, 0.02);
+    EXPECT_NEAR(true_least(cell, m.part, m.T_move), 0.7, 0.02);
+    EXPECT_LE(m.translation, 1.0 + 1e-9);
+    EXPECT_TRUE(m.T_machine_part.isApprox(m.T_move * job.workpiece.T_machine_workpiece, 1e-12));
+    ASSERT_TRUE(m.final_part_placed);
+    Eigen::Vector3d lowest = Eigen::Vector3d::Constant(1e9);
+    for (const auto& v : m.final_part_placed->vertices_) lowest = lowest.cwiseMin(v);
+    EXPECT_TRUE(lowest.isApprox(m.T_move.translation(), 1e-9));  // the box's corner was at the origin
+    ASSERT_EQ(m.face_names.size(), 6u);
+    EXPECT_EQ(m.face_names[0].substr(0, 6), "face 1");
+    ASSERT_EQ(m.warnings.size(), 1u);  // a fifth of the surface, the bottom, unscanned
+    EXPECT_NE(m.warnings[0].find("seen by no scan"), std::string::npos) << m.warnings[0];
+
+    job.workpiece.allowance_min = 0.9;  // more than the stock gives anywhere
+    const MachiningResult short_of =
+        plan_machining(job, merged, I, job.workpiece.T_machine_workpiece, kSpacing, kNoise);
+    ASSERT_TRUE(short_of.available);
+    EXPECT_FALSE(short_of.fits);
+    bool named = false;
+    for (const auto& w : short_of.warnings)
+        named = named || w.find("insufficient stock") != std::string::npos;
+    EXPECT_TRUE(named);
+
+    job.workpiece.final_part->mesh = nullptr;  // points give no surface to measure
+    job.workpiece.final_part->points = std::make_shared<open3d::geometry::PointCloud>(merged);
+    const MachiningResult none =
+        plan_machining(job, merged, I, job.workpiece.T_machine_workpiece, kSpacing, kNoise);
+    EXPECT_FALSE(none.available);
+    EXPECT_NE(none.reason.find("not a mesh"), std::string::npos) << none.reason;
 }
 
 }  // namespace

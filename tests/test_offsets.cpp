@@ -347,6 +347,11 @@ TEST(Offsets, RunWritesTheFilesOfResultJsonsPose) {
     test::spit(cell / "job.yaml",
                test::slurp(cell / "job.yaml") +
                    "\noutput: {offsets: [fanuc, siemens, heidenhain, linuxcnc], work_offset: 2}\n");
+    // The final part placed (translations, within 0.5): the offsets are the placed frame (SPEC "Machining").
+    test::spit(cell / "job.yaml",
+               std::regex_replace(test::slurp(cell / "job.yaml"), std::regex("\n  final_part: ([^\n]*)"),
+                                  "\n  final_part: $1\n  placement: {mode: maxmin, free: [x, y, z], limits: "
+                                  "{translation: 0.5}}"));
     ASSERT_EQ(sh("PARTLOC_CACHE='" + (tmp.dir / "cache").string() + "' '" PARTLOC_EXE "' run '" +
                  (cell / "job.yaml").string() + "' --out '" + out.string() + "' --threads 2 > '" +
                  log.string() + "' 2>&1"),
@@ -358,8 +363,15 @@ TEST(Offsets, RunWritesTheFilesOfResultJsonsPose) {
     Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
     for (int r = 0; r < 3; ++r)
         for (int c = 0; c < 4; ++c)
-            T.matrix()(r, c) = result["workpiece"]["T_machine_workpiece"][r][c].get<double>();
+            T.matrix()(r, c) = result["placement"]["T_machine_part"][r][c].get<double>();
     T.translation() *= mm;
+    ASSERT_EQ(result["placement"]["mode"], "maxmin") << result["placement"].dump();
+    EXPECT_LE(result["placement"]["moved_from_located"]["translation"].get<double>(), 0.5 + 1e-9);
+    EXPECT_NEAR(result["placement"]["moved_from_located"]["rotation_deg"].get<double>(), 0.0, 1e-9);
+    EXPECT_GE(result["placement"]["min_allowance"].get<double>(),
+              result["allowance"]["located_min"].get<double>());
+    EXPECT_TRUE(fs::exists(out / "allowance.ply"));
+    EXPECT_TRUE(fs::exists(out / "final_part_placed.stl"));
     const auto& offsets = result["offsets"];
     ASSERT_TRUE(offsets["written"].get<bool>()) << offsets.dump();
     EXPECT_EQ(offsets["work_offset"], 2);
@@ -415,6 +427,44 @@ TEST(Offsets, JobFieldsAreChecked) {
     const Job j = io::load_job(cell / "e.yaml");
     EXPECT_EQ(j.output.offsets, (std::vector<std::string>{"siemens", "linuxcnc"}));
     EXPECT_EQ(j.output.work_offset, 6);
+}
+
+TEST(Machining, JobFieldsAreChecked) {
+    test::TempFolder tmp("partloc_machining_job");
+    const fs::path cell = tmp.dir / "cell";
+    ASSERT_EQ(
+        std::system(
+            ("'" PARTLOC_EXE "' simulate --out '" + cell.string() + "' --seed 3 > /dev/null 2>&1").c_str()),
+        0);
+    const std::string job = test::slurp(cell / "job.yaml");
+    const auto with = [&](const std::string& name, const std::string& fields) {
+        test::spit(cell / name, std::regex_replace(job, std::regex("\n  final_part: ([^\n]*)"),
+                                                   "\n  final_part: $1\n" + fields));
+        return cell / name;
+    };
+    test::expect_job_error(with("a.yaml", "  placement: {mode: best}"),
+                           "workpiece.placement.mode: expected located or maxmin, found 'best'");
+    test::expect_job_error(with("b.yaml", "  placement: {mode: maxmin, free: [x, q]}"),
+                           "workpiece.placement.free[1]: expected one of x, y, z, a, b, c, found 'q'");
+    test::expect_job_error(with("c.yaml", "  placement: {mode: maxmin, limits: {translation: -1}}"),
+                           "workpiece.placement.limits.translation: must be at least 0");
+    test::expect_job_error(with("d.yaml", "  allowance: {least: 1}"),
+                           "workpiece.allowance.least: unknown field");
+    test::spit(cell / "e.yaml", std::regex_replace(job, std::regex("\n  final_part: [^\n]*"),
+                                                   "\n  placement: {mode: maxmin}"));
+    test::expect_job_error(cell / "e.yaml", "workpiece.placement: maxmin needs workpiece.final_part");
+    const Job j =
+        io::load_job(with("f.yaml",
+                          "  allowance: {min: 0.25}\n  placement: {mode: maxmin, free: [z, A], limits: "
+                          "{translation: 1.5, rotation_deg: 0.5}}"));
+    EXPECT_EQ(j.workpiece.allowance_min, 0.25);
+    EXPECT_TRUE(j.workpiece.placement.maxmin);
+    EXPECT_EQ(j.workpiece.placement.free, (std::array<bool, 6>{false, false, true, true, false, false}));
+    EXPECT_EQ(j.workpiece.placement.max_translation, 1.5);
+    EXPECT_EQ(j.workpiece.placement.max_rotation_deg, 0.5);
+    const Job plain = io::load_job(cell / "job.yaml");
+    EXPECT_FALSE(plain.workpiece.placement.maxmin);
+    EXPECT_FALSE(plain.workpiece.allowance_min.has_value());
 }
 
 TEST(Offsets, JobUnitsBecomeMillimetresOrInchesAndTheFarCornerIsTheBoxes) {

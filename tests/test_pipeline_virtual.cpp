@@ -162,7 +162,8 @@ TEST(PartFit, AScanWhoseRegistrationIsFarLessCertainIsLeftOutOfIt) {
             EXPECT_NE(std::find(d.result.warnings.begin(), d.result.warnings.end(), r.file + ": " + w),
                       d.result.warnings.end());
         }
-    EXPECT_EQ(d.result.warnings.size(), scan_warnings);
+    // ... and then the final part's (its allowance: the unscanned share of its surface, a shortfall).
+    EXPECT_EQ(d.result.warnings.size(), scan_warnings + d.result.machining.warnings.size());
     EXPECT_LT(d.error.translation, 0.04);
     EXPECT_LT(d.error.rotation_deg, 0.03);
 }

@@ -65,14 +65,15 @@ std::vector<int> face_of_triangles(const open3d::geometry::TriangleMesh& mesh,
 /// A least-squares plane through `members` (normal on the side of their normals), refitted without the points
 /// beyond 2.5 robust sigmas of it (at the stock's edges: points of the next face whose estimated normals
 /// still turn this way). No fit (points 0) when fewer than `need` remain.
-PlaneFit robust_plane(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>& normals,
-                      std::vector<int>& members, double need, double noise) {
-    PlaneFit fit;
+StockPlaneFit robust_plane(const std::vector<Eigen::Vector3d>& points,
+                           const std::vector<Eigen::Vector3d>& normals, std::vector<int>& members,
+                           double need, double noise) {
+    StockPlaneFit fit;
     Eigen::Vector3d outward = Eigen::Vector3d::Zero();
     for (int j : members) outward += normals[j];
     std::vector<double> residual, sorted;
     for (int pass = 0; pass < 4; ++pass) {
-        if (members.size() < std::max(need, 3.0)) return PlaneFit{};
+        if (members.size() < std::max(need, 3.0)) return StockPlaneFit{};
         Eigen::Vector3d c = Eigen::Vector3d::Zero();
         for (int j : members) c += points[j];
         c /= static_cast<double>(members.size());
@@ -152,7 +153,7 @@ StockPlane plane_near(const ScannedStock& stock, const Eigen::Vector3d& p, const
     if (best_last == 0) return plane;
     std::vector<int> members;
     for (std::size_t i = best_first; i < best_last; ++i) members.push_back(cand[i].second);
-    PlaneFit fit = robust_plane(stock.points, stock.normals, members, need, s.noise);
+    StockPlaneFit fit = robust_plane(stock.points, stock.normals, members, need, s.noise);
     if (fit.points == 0 || fit.normal.dot(n) < cos_max) return plane;
     const double floor = 0.25 * s.noise;
     // The flat region most of the points belong to, where it is as flat and agrees (ScannedStock::region).
@@ -167,7 +168,7 @@ StockPlane plane_near(const ScannedStock& stock, const Eigen::Vector3d& p, const
                 most = count;
             }
         if (best >= 0 && 2 * most >= static_cast<int>(members.size())) {
-            const PlaneFit& r = stock.regions[best];
+            const StockPlaneFit& r = stock.regions[best];
             if (r.points > fit.points && r.sigma <= 1.25 * std::max({fit.sigma, floor, s.noise}) &&
                 r.normal.dot(n) >= cos_max) {
                 const StockPlane narrow{true, fit.centre, fit.normal, static_cast<int>(fit.points)};
@@ -201,7 +202,7 @@ StockPlane plane_near(const ScannedStock& stock, const Eigen::Vector3d& p, const
             if (std::abs(d.dot(mean_normal)) > band || stock.normals[j].dot(n) < cos_max) continue;
             wide.push_back(j);
         }
-        PlaneFit w = robust_plane(stock.points, stock.normals, wide, need, s.noise);
+        StockPlaneFit w = robust_plane(stock.points, stock.normals, wide, need, s.noise);
         // Flat as far (the scatter no larger than the narrow fit's or the scanner's noise) and the same
         // surface (the heights where the line meets them agree within the narrow fit's error there).
         if (w.points > fit.points && w.sigma <= 1.25 * std::max({fit.sigma, floor, s.noise}) &&
@@ -261,7 +262,7 @@ void grow_regions(ScannedStock& stock, const AllowanceSettings& s) {
             }
         }
         if (static_cast<double>(members.size()) < 4.0 * need) continue;
-        PlaneFit fit = robust_plane(stock.points, stock.normals, members, need, s.noise);
+        StockPlaneFit fit = robust_plane(stock.points, stock.normals, members, need, s.noise);
         if (fit.points == 0) continue;
         const int r = static_cast<int>(stock.regions.size());
         for (int j : members) stock.region[j] = r;
@@ -271,7 +272,7 @@ void grow_regions(ScannedStock& stock, const AllowanceSettings& s) {
 
 }  // namespace
 
-double PlaneFit::height_se(const Eigen::Vector3d& q, double sigma_floor) const {
+double StockPlaneFit::height_se(const Eigen::Vector3d& q, double sigma_floor) const {
     const double s = std::max(sigma, sigma_floor);
     double v = 1.0 / static_cast<double>(std::max<std::size_t>(points, 1));
     for (int k = 0; k < 2; ++k) {

@@ -66,7 +66,7 @@ struct PartSamples {
 PartSamples sample_part(const open3d::geometry::TriangleMesh& mesh, double spacing, double face_angle_deg);
 
 /// A least-squares plane through scan points, with what its height's standard error needs.
-struct PlaneFit {
+struct StockPlaneFit {
     Eigen::Vector3d centre = Eigen::Vector3d::Zero(), normal = Eigen::Vector3d::Zero();
     double sigma = 0.0;      ///< robust scatter of the kept points about the plane (job units)
     std::size_t points = 0;  ///< 0: no fit
@@ -92,7 +92,7 @@ struct ScannedStock {
     /// where it agrees, is exact there (the least allowance per face of a tilted stock box at noise 0.13 mm
     /// was 0.02-0.03 mm off with discs of up to 20 spacings; tests/test_allowance.cpp).
     std::vector<int> region;
-    std::vector<PlaneFit> regions;
+    std::vector<StockPlaneFit> regions;
 };
 /// The search over them in cells of half the narrow plane's radius (the queries are of one and 2.5 such
 /// radii: larger cells than RadiusGrid's usual tenth visit far fewer empty cells around a surface), and

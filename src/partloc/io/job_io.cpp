@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <exception>
@@ -60,6 +61,7 @@ class JobParser {
     void parse_workpiece(const YAML::Node& root, Job& job, std::vector<FileTask>& tasks);
     void parse_scans(const YAML::Node& root, Job& job, std::vector<FileTask>& tasks);
     void parse_output(const YAML::Node& root, Job& job);
+    void parse_machining(const YAML::Node& workpiece, Job& job);
 
     [[noreturn]] void fail(const YAML::Node& node, const std::string& path,
                            const std::string& problem) const {
@@ -394,7 +396,8 @@ void JobParser::parse_fiducials(const YAML::Node& root, Job& job, std::vector<Fi
 void JobParser::parse_workpiece(const YAML::Node& root, Job& job, std::vector<FileTask>& tasks) {
     const YAML::Node w = required(root, "", "workpiece");
     check_map(w, "workpiece",
-              {"reference_surfaces", "datum", "final_part", "moves_with", "region", "datums", "fit"});
+              {"reference_surfaces", "datum", "final_part", "moves_with", "region", "datums", "fit",
+               "allowance", "placement"});
     if (const YAML::Node d = w["datums"]; d.IsDefined() && !d.IsNull()) {
         if (!d.IsSequence() || d.size() != 3)
             fail(d, "workpiece.datums",
@@ -455,6 +458,53 @@ void JobParser::parse_workpiece(const YAML::Node& root, Job& job, std::vector<Fi
         if ((hi - lo).minCoeff() <= 0)
             fail(r, "workpiece.region", "max must be greater than min on every axis");
         job.workpiece.region = Eigen::AlignedBox3d(lo, hi);
+    }
+    parse_machining(w, job);
+}
+
+void JobParser::parse_machining(const YAML::Node& w, Job& job) {
+    const bool has_part = w["final_part"].IsDefined() && !w["final_part"].IsNull();
+    if (const YAML::Node a = w["allowance"]; a.IsDefined() && !a.IsNull()) {
+        check_map(a, "workpiece.allowance", {"min"});
+        if (!has_part) fail(a, "workpiece.allowance", "needs workpiece.final_part (the part to be cut)");
+        job.workpiece.allowance_min =
+            number_at_least(required(a, "workpiece.allowance", "min"), "workpiece.allowance.min", 0, false);
+    }
+    const YAML::Node p = w["placement"];
+    if (!p.IsDefined() || p.IsNull()) return;
+    const std::string at = "workpiece.placement";
+    check_map(p, at, {"mode", "free", "limits"});
+    PlacementSpec& spec = job.workpiece.placement;
+    if (const YAML::Node m = p["mode"]; m.IsDefined()) {
+        const std::string mode = text(m, at + ".mode");
+        if (mode != "located" && mode != "maxmin")
+            fail(m, at + ".mode", "expected located or maxmin, found '" + mode + "'");
+        spec.maxmin = mode == "maxmin";
+    }
+    if (spec.maxmin && !has_part) fail(p, at, "maxmin needs workpiece.final_part (the part to be placed)");
+    if (const YAML::Node f = p["free"]; f.IsDefined()) {
+        if (!f.IsSequence())
+            fail(f, at + ".free",
+                 "expected a list of degrees of freedom (x, y, z, a, b, c), found " + describe(f));
+        spec.free.fill(false);
+        const std::string names = "xyzabc";
+        for (std::size_t i = 0; i < f.size(); ++i) {
+            const std::string path = at + ".free[" + std::to_string(i) + "]";
+            const std::string dof = text(f[i], path);
+            const std::size_t k =
+                dof.size() == 1 ? names.find(static_cast<char>(std::tolower(dof[0]))) : std::string::npos;
+            if (k == std::string::npos)
+                fail(f[i], path, "expected one of x, y, z, a, b, c, found '" + dof + "'");
+            if (spec.free[k]) fail(f[i], path, "'" + dof + "' is given twice");
+            spec.free[k] = true;
+        }
+    }
+    if (const YAML::Node l = p["limits"]; l.IsDefined() && !l.IsNull()) {
+        check_map(l, at + ".limits", {"translation", "rotation_deg"});
+        if (l["translation"].IsDefined())
+            spec.max_translation = number_at_least(l["translation"], at + ".limits.translation", 0, false);
+        if (l["rotation_deg"].IsDefined())
+            spec.max_rotation_deg = number_at_least(l["rotation_deg"], at + ".limits.rotation_deg", 0, false);
     }
 }
 

@@ -351,7 +351,9 @@ WorkOffsets work_offsets(const Job& job, const JobResult& result) {
         w.reason = "the workpiece was not located: no work offsets";
         return w;
     }
-    const Eigen::Isometry3d& T = result.workpiece.T_machine_workpiece;
+    // The placed frame where the final part was placed (SPEC "Machining"), else the located one.
+    const Eigen::Isometry3d& T =
+        result.machining.available ? result.machining.T_machine_part : result.workpiece.T_machine_workpiece;
     const Eigen::Isometry3d& T_nominal = result.workpiece.T_machine_workpiece_nominal;
     const ModelSource& part =
         job.workpiece.final_part ? *job.workpiece.final_part : job.workpiece.reference_surfaces;
@@ -362,6 +364,11 @@ WorkOffsets work_offsets(const Job& job, const JobResult& result) {
     s.work_offset = job.output.work_offset;
     s.inch = inch;
     s.far_corner = w.far_corner * scale;
+    if (result.machining.available && result.machining.maxmin)
+        s.notes.push_back(
+            format("the frame is the final part's maxmin placement (result.json placement), "
+                   "moved %.6f %s and turned %.6f degrees from the located frame",
+                   result.machining.translation * scale, w.units.c_str(), result.machining.rotation_deg));
     for (const auto& name : job.workpiece.moves_with) {
         const Axis* a = job.machine.find(name);
         if (!a || a->type != AxisType::Rotary) continue;

@@ -404,6 +404,42 @@ static void job_section(std::ostream& h, const Job& job, const JobResult& result
     h << "</table>\n";
 }
 
+/// SPEC "Machining": the final part's allowance per face and its placement.
+static void machining_section(std::ostream& h, const JobResult& result, const Formatter& f,
+                              const std::string& u) {
+    const MachiningResult& m = result.machining;
+    if (!m.available) {
+        if (!m.reason.empty()) h << "<h2>Allowance</h2>\n<p class=dim>" << escape_html(m.reason) << "</p>\n";
+        return;
+    }
+    const auto cell = [&](double v) {
+        return std::isnan(v) ? std::string("<td class=dim>unscanned</td>")
+                             : "<td class=num" + std::string(v < m.required ? " style='color:#b00'" : "") +
+                                   ">" + f.length(v) + "</td>";
+    };
+    h << "<h2>Allowance: the stock left on the final part</h2>\n";
+    h << "<p>Placement <b>" << (m.maxmin ? "maxmin" : "located") << "</b>: <b>"
+      << (m.fits ? "fits" : "insufficient stock") << "</b>; least allowance " << f.length(m.map.all.min)
+      << " " << u << " (required " << f.length(m.required) << " " << u << "; " << f.length(m.located.all.min)
+      << " " << u << " where the part was located); moved " << f.length(m.translation) << " " << u << " and "
+      << f.angle(m.rotation_deg) << " ° from the located frame.</p>\n";
+    h << "<table><tr><th>placed frame</th><th>X (" << u << ")</th><th>Y (" << u << ")</th><th>Z (" << u
+      << ")</th><th>A (°)</th><th>B (°)</th><th>C (°)</th></tr>\n<tr><th>T_machine_part</th>"
+      << pose_cells(m.T_machine_part, f) << "</tr></table>\n";
+    h << "<table><tr><th>face</th><th>area (" << u << "²)</th><th>min (" << u << ")</th><th>mean (" << u
+      << ")</th><th>max (" << u << ")</th><th>unscanned</th></tr>\n";
+    for (std::size_t k = 0; k < m.map.faces.size(); ++k) {
+        const FaceAllowance& a = m.map.faces[k];
+        h << "<tr><td>" << escape_html(m.face_names[k]) << "</td><td class=num>"
+          << fixed(m.part.faces[k].area, 1) << "</td>" << cell(a.min) << cell(a.mean) << cell(a.max)
+          << "<td class=num>" << fixed(100.0 * a.unscanned_fraction(), 1) << " %</td></tr>\n";
+    }
+    h << "</table>\n<p class=dim>Allowance: the distance along the final part's outward normal to the "
+         "scanned "
+         "surface, positive where stock remains, red below the required; unscanned where no scan saw the "
+         "stock. Per sample in allowance.ply.</p>\n";
+}
+
 std::string render_report_html(const Job& job, const JobResult& result, const ReportOptions& options) {
     const Formatter f{length_decimals(job.units), job.units};
     const std::string u = escape_html(job.units);
@@ -413,6 +449,7 @@ std::string render_report_html(const Job& job, const JobResult& result, const Re
     h << "<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'><title>" << title << "</title><style>"
       << kStyle << "</style></head><body>\n<h1>" << title << "</h1>\n";
     pose_section(h, job, result, f, u);
+    machining_section(h, result, f, u);
     scans_section(h, job, result, f, u);
     fits_section(h, result, f, u);
     points_section(h, job, result, f, options);

@@ -2,6 +2,7 @@
 
 #include <tbb/parallel_invoke.h>
 
+#include <algorithm>
 #include <cmath>
 #include <nlohmann/json.hpp>
 
@@ -152,6 +153,88 @@ Json probed_json(const Job& job) {
     return all;
 }
 
+Json face_allowance_json(const FaceAllowance& f) {
+    Json j;
+    j["min"] = number(f.min);
+    j["min_at"] = std::isnan(f.min) ? Json(nullptr) : vector3(f.min_at);
+    j["mean"] = number(f.mean);
+    j["max"] = number(f.max);
+    j["unscanned_fraction"] = number(f.unscanned_fraction());
+    j["samples"] = f.samples;
+    return j;
+}
+
+/// SPEC "Machining": allowance and placement; nothing without a final part.
+void machining_json(Json& j, const JobResult& result) {
+    const MachiningResult& m = result.machining;
+    if (!m.available) {
+        if (!m.reason.empty()) j["allowance"] = {{"message", m.reason}};
+        return;
+    }
+    Json a = face_allowance_json(m.map.all);
+    a["required"] = number(m.required);
+    a["located_min"] = number(m.located.all.min);
+    Json faces = Json::array();
+    for (std::size_t f = 0; f < m.map.faces.size(); ++f) {
+        Json fj = {
+            {"id", m.part.faces[f].id}, {"name", m.face_names[f]}, {"area", number(m.part.faces[f].area)}};
+        fj.update(face_allowance_json(m.map.faces[f]));
+        faces.push_back(fj);
+    }
+    a["faces"] = faces;
+    j["allowance"] = a;
+    Json p;
+    p["mode"] = m.maxmin ? "maxmin" : "located";
+    p["status"] = m.fits ? "fits" : "insufficient_stock";
+    p["message"] = m.placement_reason;
+    p["T_machine_part"] = matrix(m.T_machine_part);
+    p["origin"] = vector3(m.T_machine_part.translation());
+    p["euler_xyz_deg"] = vector3(euler_xyz_deg(m.T_machine_part.linear()));
+    p["min_allowance"] = number(m.map.all.min);
+    p["min_at"] = vector3(m.map.all.min_at);
+    p["min_face"] = m.map.min_face >= 0 ? Json(m.face_names[m.map.min_face]) : Json(nullptr);
+    p["moved_from_located"] = {{"translation", number(m.translation)},
+                               {"rotation_deg", number(m.rotation_deg)}};
+    p["seconds"] = number(m.seconds);
+    j["placement"] = p;
+}
+
+/// allowance.ply: the final part's samples where it is placed (machine frame), binary little-endian, with
+/// `allowance` (NaN where unscanned), `scanned` (0 or 1) and a colour: red where the part breaks out, grey
+/// where unscanned, green to blue as the allowance grows to twice its mean.
+void write_allowance_ply(const fs::path& path, const MachiningResult& m, const std::string& comment) {
+    const AllowanceMap& map = m.map;
+    std::string header =
+        "ply\nformat binary_little_endian 1.0\ncomment partloc allowance " + comment + "\nelement vertex " +
+        std::to_string(map.points.size()) +
+        "\nproperty float x\nproperty float y\nproperty float z\nproperty float nx\nproperty "
+        "float ny\nproperty float nz\nproperty float allowance\nproperty uchar scanned\nproperty "
+        "uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n";
+    std::string body;
+    body.reserve(map.points.size() * 32);
+    const auto put = [&](float v) { body.append(reinterpret_cast<const char*>(&v), sizeof v); };
+    const double top = std::isfinite(map.all.mean) && map.all.mean > 0 ? 2.0 * map.all.mean : 1.0;
+    for (std::size_t i = 0; i < map.points.size(); ++i) {
+        for (int k = 0; k < 3; ++k) put(static_cast<float>(map.points[i][k]));
+        for (int k = 0; k < 3; ++k) put(static_cast<float>(map.normals[i][k]));
+        const double a = map.allowance[i];
+        put(static_cast<float>(a));
+        unsigned char c[4] = {0, 128, 128, 128};
+        if (!std::isnan(a)) {
+            c[0] = 1;
+            if (a < m.required) {
+                c[1] = 220, c[2] = 30, c[3] = 30;
+            } else {
+                const double t = std::clamp(a / top, 0.0, 1.0);
+                c[1] = 20, c[2] = static_cast<unsigned char>(200 * (1 - t) + 40),
+                c[3] = static_cast<unsigned char>(215 * t + 40);
+            }
+        }
+        body.append(reinterpret_cast<const char*>(c), 4);
+    }
+    write_text_atomically(path, header + body);
+}
+
 /// JSON text with every array of plain numbers on one line, so a 4x4 matrix reads as four rows.
 std::string compact_number_arrays(const std::string& text) {
     std::string out;
@@ -209,6 +292,7 @@ std::string result_json(const Job& job, const JobResult& result) {
     j["workpiece"] = workpiece_json(job, result.workpiece);
     j["probed_poses"] = probed_json(job);
     j["warnings"] = result.warnings;
+    machining_json(j, result);
     if (!job.output.offsets.empty()) j["offsets"] = Json::parse(work_offsets_json(job, result));
     j["seconds"] = number(result.seconds);
     // A file name need not be UTF-8 (a path is bytes); JSON must be. Bytes that are not UTF-8 are written as
@@ -255,6 +339,16 @@ std::vector<fs::path> write_outputs(const fs::path& out_dir, const Job& job, con
     for (int k = 0; k < 4; ++k)
         if (made[k]) written.push_back(files[k]);
 
+    // The machining outputs (SPEC "Machining"): there only when this run measured them.
+    if (result.machining.available) {
+        write_allowance_ply(out_dir / "allowance.ply", result.machining, units);
+        written.push_back(out_dir / "allowance.ply");
+        write_mesh(out_dir / "final_part_placed.stl", *result.machining.final_part_placed, units);
+        written.push_back(out_dir / "final_part_placed.stl");
+    } else {
+        remove_stale(out_dir / "allowance.ply");
+        remove_stale(out_dir / "final_part_placed.stl");
+    }
     for (const auto& f : write_work_offsets(out_dir, job, result)) written.push_back(f);
     write_text_atomically(out_dir / "result.json", result_json(job, result));
     written.push_back(out_dir / "result.json");

@@ -10,6 +10,7 @@
 #include "partloc/core/register_scan.hpp"
 #include "partloc/core/stock.hpp"
 #include "partloc/core/workpiece_fit.hpp"
+#include "partloc/pipeline/machining.hpp"
 
 namespace partloc {
 
@@ -74,6 +75,8 @@ struct Config {
     DatumFitSettings datums;  ///< the 3-2-1 fit; its noise and spacing are set from the scans
     StockSettings stock;      ///< its spacing is set from the scans
     UncertaintySettings uncertainty;
+    MachiningSettings
+        machining;  ///< the allowance and placement; spacing, noise and the job's fields set per job
 };
 
 }  // namespace partloc

@@ -5,6 +5,8 @@
 #include <open3d/geometry/TriangleMesh.h>
 
 #include <Eigen/Geometry>
+#include <array>
+#include <limits>
 #include <memory>
 #include <optional>
 #include <string>
@@ -53,6 +55,15 @@ enum class WorkpieceFitMode {
     Datums,        ///< 3-2-1: the primary fixes 3 degrees of freedom, the secondary 2, the tertiary 1
 };
 
+/// Where the final part goes in the material (SPEC "Machining", workpiece.placement).
+struct PlacementSpec {
+    bool maxmin = false;  ///< mode maxmin; false: located (the part moves with the located datum frame)
+    /// The degrees of freedom a maxmin placement may use, about the located datum frame: x, y, z, a, b, c.
+    std::array<bool, 6> free{{true, true, true, true, true, true}};
+    double max_translation = std::numeric_limits<double>::infinity();  ///< of the datum origin (job units)
+    double max_rotation_deg = std::numeric_limits<double>::infinity();
+};
+
 struct Workpiece {
     ModelSource reference_surfaces;  ///< nominal position, machine frame, axes at 0
     Eigen::Isometry3d T_machine_workpiece = Eigen::Isometry3d::Identity();  ///< nominal datum frame
@@ -61,6 +72,10 @@ struct Workpiece {
     std::optional<Eigen::AlignedBox3d> region;  ///< crop box, machine frame, axes at 0
     std::vector<Datum> datums;                  ///< empty, or three: primary, secondary, tertiary
     WorkpieceFitMode fit = WorkpieceFitMode::Simultaneous;
+    /// The least stock required on the final part's surface (job units; workpiece.allowance.min): what
+    /// placement status `fits` means. Not given: 0, the final part inside the material.
+    std::optional<double> allowance_min;
+    PlacementSpec placement;
 };
 
 /// A pose the job gave as probed points on three planes, with the fit's residuals, for the report.

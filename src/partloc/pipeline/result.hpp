@@ -11,6 +11,7 @@
 #include "partloc/core/datum_fit.hpp"
 #include "partloc/core/geometry.hpp"
 #include "partloc/core/localize.hpp"
+#include "partloc/pipeline/machining.hpp"
 
 namespace partloc {
 
@@ -77,6 +78,8 @@ struct JobResult {
     std::shared_ptr<open3d::geometry::PointCloud> merged;   ///< machine frame, axes at 0
     std::shared_ptr<open3d::geometry::TriangleMesh> stock;  ///< as-built workpiece
     std::shared_ptr<open3d::geometry::TriangleMesh> final_part_located;
+    /// The final part's allowance and placement (SPEC "Machining"); not available without a final part.
+    MachiningResult machining;
     /// What a person must look at before cutting (SPEC "Status with warnings"), one sentence each: the
     /// job's (Job::warnings, what reading its files found), then every scan's, named by the scan. A located
     /// result with warnings is still located.

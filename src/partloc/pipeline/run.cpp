@@ -16,6 +16,7 @@
 #include "partloc/core/format.hpp"
 #include "partloc/core/register_scan.hpp"
 #include "partloc/core/stock.hpp"
+#include "partloc/pipeline/machining.hpp"
 #include "partloc/pipeline/part.hpp"
 #include "partloc/pipeline/uncertainty.hpp"
 
@@ -295,6 +296,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         result.warnings = job.warnings;  // what reading the files found, then each scan's
         for (const ScanResult& r : result.scans)
             for (const std::string& warning : r.warnings) result.warnings.push_back(r.file + ": " + warning);
+        for (const std::string& warning : result.machining.warnings) result.warnings.push_back(warning);
         result.seconds = seconds_since(t0);
         return std::move(result);
     };
@@ -395,6 +397,14 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         result.final_part_located = located;
     }
     result.merged = stock.written();
+    // What the machinist needs to cut: the final part's allowance in the material the scans show, and its
+    // placement (pipeline/machining.hpp), while the stock's mesh is built.
+    if (job.workpiece.final_part) {
+        tell("measuring the allowance" +
+             std::string(job.workpiece.placement.maxmin ? " and placing the part" : ""));
+        result.machining = plan_machining(job, *result.merged, T_located_nominal, w.T_machine_workpiece,
+                                          prep.spacing, noise, config.machining);
+    }
     result.stock = stock.stock();
     return done("");
 }
