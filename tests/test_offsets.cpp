@@ -13,6 +13,8 @@
 #include <sstream>
 
 #include "partloc/core/format.hpp"
+#include "partloc/io/cloud_io.hpp"
+#include "partloc/io/job_io.hpp"
 #include "partloc/io/offsets.hpp"
 #include "test_util.hpp"
 
@@ -372,6 +374,40 @@ TEST(Offsets, RunWritesTheFilesOfResultJsonsPose) {
               result["allowance"]["located_min"].get<double>());
     EXPECT_TRUE(fs::exists(out / "allowance.ply"));
     EXPECT_TRUE(fs::exists(out / "final_part_placed.stl"));
+    // The models for CAM in the frame the offsets give (issue 26). The final part there is its CAD in the
+    // job's nominal datum frame whatever the location and the placement (both move the frame and the part
+    // together): a known answer. The stock is stock.stl carried by the inverse of that frame.
+    {
+        const Job job = io::load_job(cell / "job.yaml");
+        ASSERT_TRUE(job.workpiece.final_part && job.workpiece.final_part->mesh);
+        ASSERT_EQ(result["cam"]["frame"], "placement.T_machine_part");
+        ASSERT_EQ(result["cam"]["final_part"], "cam/final_part.stl");
+        const auto cam_part = io::read_mesh(out / "cam" / "final_part.stl", "cam part");
+        const auto& cad = *job.workpiece.final_part->mesh;
+        const Eigen::Isometry3d T_nominal_inv = job.workpiece.T_machine_workpiece.inverse();
+        ASSERT_EQ(cam_part->triangles_.size(), cad.triangles_.size());
+        double worst = 0.0;
+        for (std::size_t t = 0; t < cad.triangles_.size(); ++t)
+            for (int k = 0; k < 3; ++k) {
+                const Eigen::Vector3d want = T_nominal_inv * cad.vertices_[cad.triangles_[t][k]];
+                double best = 1e300;  // STL merges corners: compare with the nearest corner of triangle t
+                for (int q = 0; q < 3; ++q)
+                    best = std::min(best, (cam_part->vertices_[cam_part->triangles_[t][q]] - want).norm());
+                worst = std::max(worst, best);
+            }
+        EXPECT_LT(worst, 1e-3) << "cam/final_part.stl is not the CAD in the nominal workpiece frame";
+        const auto stock = io::read_mesh(out / "stock.stl", "stock");
+        const auto cam_stock = io::read_mesh(out / "cam" / "stock.stl", "cam stock");
+        ASSERT_EQ(cam_stock->vertices_.size(), stock->vertices_.size());
+        Eigen::Isometry3d T_units = T;  // the files are in the job's units, as result.json
+        T_units.translation() /= mm;
+        const Eigen::Isometry3d T_part_machine = T_units.inverse();
+        double stock_worst = 0.0;
+        for (std::size_t v = 0; v < stock->vertices_.size(); ++v)
+            stock_worst = std::max(stock_worst,
+                                   (cam_stock->vertices_[v] - T_part_machine * stock->vertices_[v]).norm());
+        EXPECT_LT(stock_worst, 1e-3);
+    }
     const auto& offsets = result["offsets"];
     ASSERT_TRUE(offsets["written"].get<bool>()) << offsets.dump();
     EXPECT_EQ(offsets["work_offset"], 2);
@@ -405,6 +441,9 @@ TEST(Offsets, RunWritesTheFilesOfResultJsonsPose) {
     EXPECT_FALSE(failed["offsets"]["written"].get<bool>());
     EXPECT_NE(failed["offsets"]["message"].get<std::string>().find("not located"), std::string::npos);
     for (OffsetDialect d : kAll) EXPECT_FALSE(fs::exists(out / "offsets" / io::dialect_file(d)));
+    EXPECT_FALSE(fs::exists(out / "cam" / "final_part.stl"));
+    EXPECT_FALSE(fs::exists(out / "cam" / "stock.stl"));
+    EXPECT_FALSE(failed.contains("cam"));
 }
 
 TEST(Offsets, JobFieldsAreChecked) {

@@ -279,6 +279,61 @@ void remove_stale(const fs::path& path) {
     fs::remove(path, ec);
 }
 
+/// The frame the CAM programme is written in: the placed frame where the final part was placed, else the
+/// located workpiece frame; the frame the work offsets give the controller.
+const Eigen::Isometry3d& cam_frame(const JobResult& result) {
+    return result.machining.available ? result.machining.T_machine_part
+                                      : result.workpiece.T_machine_workpiece;
+}
+
+bool has_cam_models(const JobResult& result) {
+    return result.workpiece.valid && (result.stock || result.machining.available);
+}
+
+/// DIR/cam/stock.stl and DIR/cam/final_part.stl: the stock and the placed final part in cam_frame, so that
+/// a CAM programme written about them, run with the work offsets, cuts the part where it lies in the
+/// material. Earlier runs' copies are removed when this run has none.
+std::vector<fs::path> write_cam_models(const fs::path& out_dir, const JobResult& result,
+                                       const std::string& units) {
+    const fs::path dir = out_dir / "cam";
+    const fs::path stock = dir / "stock.stl", part = dir / "final_part.stl";
+    std::vector<fs::path> written;
+    if (!has_cam_models(result)) {
+        remove_stale(stock);
+        remove_stale(part);
+        std::error_code ec;
+        fs::remove(dir, ec);  // only when empty
+        return written;
+    }
+    fs::create_directories(dir);
+    const Eigen::Matrix4d T_frame_machine = cam_frame(result).inverse().matrix();
+    const std::string comment = units + ", workpiece frame";
+    const auto write_in_frame = [&](const fs::path& path,
+                                    const std::shared_ptr<open3d::geometry::TriangleMesh>& mesh) {
+        if (!mesh) {
+            remove_stale(path);
+            return;
+        }
+        open3d::geometry::TriangleMesh m = *mesh;
+        m.Transform(T_frame_machine);
+        write_mesh(path, m, comment);
+        written.push_back(path);
+    };
+    write_in_frame(stock, result.stock);
+    write_in_frame(part, result.machining.available ? result.machining.final_part_placed : nullptr);
+    return written;
+}
+
+void cam_json(Json& j, const JobResult& result) {
+    if (!has_cam_models(result)) return;
+    Json c;
+    c["frame"] = result.machining.available ? "placement.T_machine_part" : "workpiece.T_machine_workpiece";
+    c["T_machine_frame"] = matrix(cam_frame(result));
+    c["stock"] = result.stock ? Json("cam/stock.stl") : Json(nullptr);
+    c["final_part"] = result.machining.available ? Json("cam/final_part.stl") : Json(nullptr);
+    j["cam"] = c;
+}
+
 }  // namespace
 
 std::string result_json(const Job& job, const JobResult& result) {
@@ -293,6 +348,7 @@ std::string result_json(const Job& job, const JobResult& result) {
     j["probed_poses"] = probed_json(job);
     j["warnings"] = result.warnings;
     machining_json(j, result);
+    cam_json(j, result);
     if (!job.output.offsets.empty()) j["offsets"] = Json::parse(work_offsets_json(job, result));
     j["seconds"] = number(result.seconds);
     // A file name need not be UTF-8 (a path is bytes); JSON must be. Bytes that are not UTF-8 are written as
@@ -349,6 +405,7 @@ std::vector<fs::path> write_outputs(const fs::path& out_dir, const Job& job, con
         remove_stale(out_dir / "allowance.ply");
         remove_stale(out_dir / "final_part_placed.stl");
     }
+    for (const auto& f : write_cam_models(out_dir, result, units)) written.push_back(f);
     for (const auto& f : write_work_offsets(out_dir, job, result)) written.push_back(f);
     write_text_atomically(out_dir / "result.json", result_json(job, result));
     written.push_back(out_dir / "result.json");
