@@ -857,11 +857,21 @@ TEST(Outputs, ReportIsSelfContainedEscapedAndDrawsThreeViews) {
     const JobResult result = located_result(job);
     const std::string html = render_report_html(job, result, {"jobs/<b>job</b>.yaml", 3000});
     EXPECT_EQ(html.rfind("<!DOCTYPE html>", 0), 0u);
-    EXPECT_EQ(html.find("<script"), std::string::npos);  // the scan named "<script>..." is escaped
+    // The scan named "<script>..." is escaped, in the tables and in the 3D view's data; the page's only
+    // scripts are the 3D view's, inline: its data, three.js, OrbitControls and the drawing.
+    EXPECT_EQ(html.find("<script>alert"), std::string::npos);
+    EXPECT_NE(html.find("\\u003cscript>alert(1)\\u003c/script>"), std::string::npos);
+    std::size_t scripts = 0;
+    for (std::size_t at = 0; (at = html.find("<script", at)) != std::string::npos; ++at) {
+        ++scripts;
+        EXPECT_EQ(html.substr(at, html.find('>', at) - at).find("src"), std::string::npos);
+    }
+    EXPECT_EQ(scripts, 4u);
+    EXPECT_EQ(html.find("No 3D view"), std::string::npos);
     EXPECT_NE(html.find("scans/&lt;script&gt;alert(1)&lt;/script&gt;.ply"), std::string::npos);
     EXPECT_NE(html.find("A&lt;&amp;&gt;"), std::string::npos);
     EXPECT_EQ(html.find("<b>job</b>"), std::string::npos);
-    EXPECT_EQ(html.find("src="), std::string::npos);  // no external images, scripts or styles
+    EXPECT_EQ(html.find("<img"), std::string::npos);  // no external images, scripts or styles
     EXPECT_EQ(html.find("<link"), std::string::npos);
     std::size_t svgs = 0, circles = 0;
     for (std::size_t at = 0; (at = html.find("<svg", at)) != std::string::npos; ++at) ++svgs;
@@ -872,6 +882,14 @@ TEST(Outputs, ReportIsSelfContainedEscapedAndDrawsThreeViews) {
     EXPECT_NE(html.find("no fiducial fits: A: coverage 0.02 &lt; 0.3"), std::string::npos);
     EXPECT_NE(html.find("-0.100"), std::string::npos);  // the deviation in X, mm to 3 decimals
     EXPECT_EQ(escape_html("a<b>&\"'"), "a&lt;b&gt;&amp;&quot;&#39;");
+
+    // Without three.js on the machine the page says so, draws the pictures, and has no script.
+    ReportOptions without;
+    without.view3d.three_js_dir = "/nonexistent/three";
+    const std::string plain = render_report_html(job, result, without);
+    EXPECT_NE(plain.find("No 3D view: it needs three.js"), std::string::npos);
+    EXPECT_EQ(plain.find("<script"), std::string::npos);
+    EXPECT_NE(plain.find("<svg"), std::string::npos);
 }
 
 TEST(Outputs, WarningsAreListedInResultJsonAndTheReportShowsThemInAmber) {

@@ -7,6 +7,7 @@
 #include <sstream>
 
 #include "partloc/core/geometry.hpp"
+#include "partloc/io/report_view3d.hpp"
 
 namespace partloc::io {
 
@@ -184,6 +185,9 @@ th{background:#f2f2f2} td.num{text-align:right;font-variant-numeric:tabular-nums
 .warn{background:#fff4d6;border:1px solid #e0a526}
 .reg{color:#1b7a1b;font-weight:600} .rej{color:#b22222;font-weight:600} .dim{color:#777}
 figure{display:inline-block;margin:0 12px 12px 0} figcaption{text-align:center;font-size:0.9em;color:#555}
+.view3d .canvas{border:1px solid #ddd;display:inline-block;line-height:0} .view3d p{margin:4px 0}
+.swatch{display:inline-block;width:12px;height:12px;border:1px solid #aaa;vertical-align:middle}
+.ramp{display:inline-block;width:120px;height:12px;border:1px solid #aaa;vertical-align:middle}
 )";
 
 }  // namespace
@@ -449,6 +453,7 @@ std::string render_report_html(const Job& job, const JobResult& result, const Re
     h << "<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'><title>" << title << "</title><style>"
       << kStyle << "</style></head><body>\n<h1>" << title << "</h1>\n";
     pose_section(h, job, result, f, u);
+    h << view3d_section(job, result, options.view3d);
     machining_section(h, result, f, u);
     scans_section(h, job, result, f, u);
     fits_section(h, result, f, u);

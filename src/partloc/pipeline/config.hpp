@@ -64,6 +64,12 @@ struct UncertaintySettings {
     std::size_t datum_scan_points = 8000;
 };
 
+/// What report.html draws.
+struct ReportSettings {
+    /// Registered workpiece points in the 3D view (an even subsample; 12 bytes each in the page, base64).
+    std::size_t view_points = 60000;
+};
+
 struct Config {
     ScaleSettings scale;
     /// Each fiducial's candidates from the global search: fine fit and verification (core/localize.hpp).
@@ -77,6 +83,7 @@ struct Config {
     UncertaintySettings uncertainty;
     MachiningSettings
         machining;  ///< the allowance and placement; spacing, noise and the job's fields set per job
+    ReportSettings report;
 };
 
 }  // namespace partloc

@@ -251,8 +251,10 @@ ScanEvidence scan_evidence(const open3d::geometry::PointCloud& points, const Sca
 
 std::shared_ptr<open3d::geometry::PointCloud> merge_scans(std::vector<ScanEvidence>& evidence,
                                                           const PartSelection& selection, bool fit_only,
-                                                          const PartSettings& settings) {
+                                                          const PartSettings& settings,
+                                                          std::vector<int>* scan_of) {
     auto m = std::make_shared<open3d::geometry::PointCloud>();
+    std::vector<int> scan;
     const auto taken = [&](std::size_t i) {
         return selection.registered[i] && (!fit_only || selection.in_fit[i]);
     };
@@ -279,12 +281,20 @@ std::shared_ptr<open3d::geometry::PointCloud> merge_scans(std::vector<ScanEviden
         for (std::size_t k : keep[i]) {
             m->points_.push_back(c.points_[k]);
             if (c.HasNormals()) m->normals_.push_back(c.normals_[k]);
+            scan.push_back(static_cast<int>(i));
         }
     }
     if (m->normals_.size() != m->points_.size()) m->normals_.clear();
-    if (m->points_.size() > settings.outlier_min_points)
-        m = m->SelectByIndex(
-            statistical_inliers(m->points_, settings.outlier_neighbours, settings.outlier_sigmas));
+    if (m->points_.size() > settings.outlier_min_points) {
+        const std::vector<std::size_t> kept =
+            statistical_inliers(m->points_, settings.outlier_neighbours, settings.outlier_sigmas);
+        m = m->SelectByIndex(kept);
+        std::vector<int> kept_scan;
+        kept_scan.reserve(kept.size());
+        for (std::size_t k : kept) kept_scan.push_back(scan[k]);
+        scan = std::move(kept_scan);
+    }
+    if (scan_of) *scan_of = std::move(scan);
     return m;
 }
 
@@ -306,7 +316,7 @@ PartFit fit_part(const PartInputs& in, PartSelection selection, const Config& co
     }
     // The selection depends on the fit, and the fit on the selection: until neither changes.
     for (;;) {
-        p.merged = merge_scans(ev, p.selection, true, config.part);
+        p.merged = merge_scans(ev, p.selection, true, config.part, &p.merged_scan);
         p.fit = fit_reference_surfaces(p.merged->points_, *in.reference, p.settings,
                                        p.merged->HasNormals() ? &p.merged->normals_ : nullptr);
         PartSelection next = next_selection(p.selection, p.fit, in, p.settings);
@@ -329,7 +339,12 @@ PartFit fit_part(const PartInputs& in, PartSelection selection, const Config& co
             "than %.3g",
             p.selection.sigma[i], p.selection.sigma_limit);
     }
-    p.all_registered = all_in_fit ? p.merged : merge_scans(ev, p.selection, false, config.part);
+    if (all_in_fit) {
+        p.all_registered = p.merged;
+        p.all_registered_scan = p.merged_scan;
+    } else {
+        p.all_registered = merge_scans(ev, p.selection, false, config.part, &p.all_registered_scan);
+    }
     p.valid = p.fit.valid;
     p.reason = p.fit.reason;
     return p;

@@ -68,6 +68,7 @@ struct PartFit {
     std::shared_ptr<open3d::geometry::PointCloud> merged;  ///< the merged points of the scans in the fit
     /// The merged points of every registered scan (merged.ply and the stock are made from these).
     std::shared_ptr<open3d::geometry::PointCloud> all_registered;
+    std::vector<int> merged_scan, all_registered_scan;  ///< per point of merged / all_registered, its scan
     /// Each scan's points near the located reference surfaces, with normals (null where it has none or is
     /// not in the fit): what the last stage took, and what the uncertainty refits.
     std::vector<std::shared_ptr<open3d::geometry::PointCloud>> on_reference;
@@ -96,9 +97,10 @@ PartFit fit_part(const PartInputs& in, PartSelection selection, const Config& co
 /// The registered scans' workpiece points (those in the fit only, when fit_only), thinned by their order to
 /// at most PartSettings::merged_points, statistical outliers removed. Never thinned on a voxel grid: on a
 /// face nearly parallel to its planes (a part squared to the machine) which points it keeps depends on the
-/// noise.
+/// noise. `scan_of`, when given, receives each kept point's scan index.
 std::shared_ptr<open3d::geometry::PointCloud> merge_scans(std::vector<ScanEvidence>& evidence,
                                                           const PartSelection& selection, bool fit_only,
-                                                          const PartSettings& settings);
+                                                          const PartSettings& settings,
+                                                          std::vector<int>* scan_of = nullptr);
 
 }  // namespace partloc

@@ -71,6 +71,18 @@ struct WorkpieceResult {
     std::vector<DatumResidual> datums;  ///< per datum of the job, its points and rmse at the result
 };
 
+/// What report.html's 3D view draws of the registered workpiece points: an even subsample of them, machine
+/// frame with every axis at 0.
+struct ViewPoints {
+    std::vector<Eigen::Vector3f> points;
+    std::vector<int> scan;  ///< per point, its index into JobResult::scans
+    /// Per point, its signed distance from the located reference surfaces along their outward normal (job
+    /// units; positive outside the material); NaN where no reference surface lies within `reach`, or where
+    /// the part was not located.
+    std::vector<float> deviation;
+    double reach = 0.0;
+};
+
 struct JobResult {
     std::string units = "mm";
     std::vector<ScanResult> scans;
@@ -78,6 +90,7 @@ struct JobResult {
     std::shared_ptr<open3d::geometry::PointCloud> merged;   ///< machine frame, axes at 0
     std::shared_ptr<open3d::geometry::TriangleMesh> stock;  ///< as-built workpiece
     std::shared_ptr<open3d::geometry::TriangleMesh> final_part_located;
+    ViewPoints view;  ///< for report.html's 3D view
     /// The final part's allowance and placement (SPEC "Machining"); not available without a final part.
     MachiningResult machining;
     /// What a person must look at before cutting (SPEC "Status with warnings"), one sentence each: the

@@ -280,6 +280,36 @@ void register_scans(const Job& job, const JobPreparation& prep, const RunSetting
     });
 }
 
+/// An even subsample of at most `max_points` of the part's registered points, each with its scan and, when
+/// T_located_nominal is given, its signed distance from the reference surfaces placed there (point to the
+/// nearest sample's tangent plane, within `reach`): report.html's 3D view.
+ViewPoints view_points(const PartFit& part, const Surface& reference,
+                       const Eigen::Isometry3d* T_located_nominal, double reach, std::size_t max_points) {
+    ViewPoints v;
+    v.reach = reach;
+    if (!part.all_registered || part.all_registered_scan.size() != part.all_registered->points_.size())
+        return v;
+    const auto& all = part.all_registered->points_;
+    const std::size_t stride =
+        std::max<std::size_t>(1, (all.size() + max_points - 1) / std::max<std::size_t>(max_points, 1));
+    const Eigen::Isometry3d T_nominal_located =
+        T_located_nominal ? T_located_nominal->inverse() : Eigen::Isometry3d::Identity();
+    for (std::size_t i = 0; i < all.size(); i += stride) {
+        if (!all[i].allFinite()) continue;
+        v.points.push_back(all[i].cast<float>());
+        v.scan.push_back(part.all_registered_scan[i]);
+        float d = std::numeric_limits<float>::quiet_NaN();
+        if (T_located_nominal) {
+            const Eigen::Vector3d q = T_nominal_located * all[i];
+            double d2 = 0.0;
+            const int k = reference.nearest(q, &d2, reach);
+            if (k >= 0) d = static_cast<float>(reference.normals[k].dot(q - reference.points[k]));
+        }
+        v.deviation.push_back(d);
+    }
+    return v;
+}
+
 JobResult run_job(const Job& job, const RunSettings& settings) {
     const auto t0 = Clock::now();
     std::optional<tbb::global_control> threads;
@@ -355,7 +385,9 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     w.points = part.fit_points;
     w.inliers = part.fit.inliers;
     w.information = part.fit.JtJ / std::max(part.settings.noise * part.settings.noise, 1e-30);
+    const double view_reach = 3.0 * std::max(part.settings.noise, prep.spacing) + 3.0 * ref_spacing;
     if (!part.valid) {
+        result.view = view_points(part, reference, nullptr, view_reach, config.report.view_points);
         result.merged = part.all_registered->VoxelDownSample(prep.spacing);
         return done(part.reason);
     }
@@ -391,6 +423,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
 
     // Build the outputs: the final part moved by the located pose, merged.ply's points and the stock.
     tell("building the outputs");
+    result.view = view_points(part, reference, &T_located_nominal, view_reach, config.report.view_points);
     if (job.workpiece.final_part && job.workpiece.final_part->mesh) {
         auto located = std::make_shared<open3d::geometry::TriangleMesh>(*job.workpiece.final_part->mesh);
         located->Transform(T_located_nominal.matrix());
