@@ -829,7 +829,10 @@ TEST(Outputs, ResultJsonHoldsSpecFieldsAndAdditions) {
     EXPECT_FALSE(fs::exists(dir / "out/final_part_located.stl"));
     std::set<std::string> names;
     for (const auto& e : fs::directory_iterator(dir / "out")) names.insert(e.path().filename().string());
-    EXPECT_EQ(names, (std::set<std::string>{"merged.ply", "report.html", "result.json", "stock.stl"}));
+    EXPECT_EQ(names, (std::set<std::string>{"cam", "merged.ply", "report.html", "result.json", "stock.stl"}));
+    // The stock for CAM, in the located workpiece frame (no final part: no placement, no cam/final_part.stl).
+    EXPECT_EQ(read_mesh(dir / "out/cam/stock.stl", "cam/stock.stl")->triangles_.size(), 1u);
+    EXPECT_FALSE(fs::exists(dir / "out/cam/final_part.stl"));
 }
 
 TEST(Outputs, NotLocatedStillWritesResultJsonAndClearsOldModels) {
