@@ -145,7 +145,10 @@ TEST(Allowance, PerFaceWithinTwoHundredthsOfTheTruth) {
             EXPECT_TRUE(std::isnan(a.min));
             continue;
         }
-        EXPECT_LT(a.unscanned_fraction(), 0.01) << "face " << a.id;
+        // Samples whose line meets the stock face within a spacing or two of its edge, with too few of its
+        // points beyond the line, are unscanned rather than read from a plane carried past the points
+        // (plane_near: a neighbouring level read as stock; tests/test_machining_sim.cpp): 1.2-1.5 % here.
+        EXPECT_LT(a.unscanned_fraction(), 0.02) << "face " << a.id;
         EXPECT_NEAR(a.min, lo, 0.02) << "face " << a.id;
         EXPECT_NEAR(a.max, hi, 0.02) << "face " << a.id;
         EXPECT_NEAR(a.mean, sum / count, 0.02) << "face " << a.id;
@@ -298,8 +301,17 @@ TEST(Placement, InsufficientStockSaysWhere) {
     EXPECT_FALSE(p.fits);
     EXPECT_NEAR(p.map.all.min, 0.7, 0.02);
     ASSERT_GE(p.map.min_face, 0);
-    // The least allowance is on one of the four sides, not the top.
-    EXPECT_LT(std::abs(part.faces[p.map.min_face].normal.z()), 0.1);
+    // The y sides bind (0.8 + 0.6 mm between them): both at the least allowance. (The top, free to move in
+    // z over an unscanned bottom, may be lowered to the same value, so the face named may be either.)
+    int sides = 0;
+    for (std::size_t f = 0; f < part.faces.size(); ++f)
+        if (std::abs(part.faces[f].normal.y()) > 0.9) {
+            ++sides;
+            EXPECT_NEAR(p.map.faces[f].min, p.map.all.min, 0.03) << "face " << part.faces[f].id;
+        }
+    EXPECT_EQ(sides, 2);
+    EXPECT_TRUE(std::abs(part.faces[p.map.min_face].normal.y()) > 0.9 ||
+                part.faces[p.map.min_face].normal.z() > 0.9);
 }
 
 // The pipeline's stage on a job: the final part placed by maxmin (translations, limited), the placed frame
