@@ -196,6 +196,7 @@ void machining_json(Json& j, const JobResult& result) {
     p["moved_from_located"] = {{"translation", number(m.translation)},
                                {"rotation_deg", number(m.rotation_deg)}};
     p["seconds"] = number(m.seconds);
+    if (m.maxmin) p["search_seconds"] = number(m.placement_seconds);
     j["placement"] = p;
 }
 

@@ -69,11 +69,14 @@ MachiningResult plan_machining(const Job& job, const open3d::geometry::PointClou
         ps.max_rotation_deg = w.placement.max_rotation_deg;
         ps.required = m.required;
         // The iterations on coarser samples; the map at the placement on all of them.
+        const auto t_place = std::chrono::steady_clock::now();
         const PartSamples coarse =
             sample_part(mesh, settings.placement_sample_spacings * as.spacing, as.face_angle_deg);
         const AllowanceMap located_coarse = measure_allowance(coarse, T_located_nominal, stock, as);
         const Placement p =
             place_maxmin(coarse, T_located_nominal, T_machine_workpiece, stock, as, ps, located_coarse);
+        m.placement_seconds =
+            std::chrono::duration<double>(std::chrono::steady_clock::now() - t_place).count();
         if (!p.valid) {
             m.placement_reason = p.reason;
             m.warnings.push_back("the placement could not be computed (" + p.reason +

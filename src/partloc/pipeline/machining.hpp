@@ -46,7 +46,8 @@ struct MachiningResult {
     double translation = 0.0, rotation_deg = 0.0;                      ///< the move from the located pose
     std::shared_ptr<open3d::geometry::TriangleMesh> final_part_placed;
     std::vector<std::string> warnings;  ///< for result.json's warnings
-    double seconds = 0.0;
+    double seconds = 0.0;               ///< the whole stage
+    double placement_seconds = 0.0;     ///< of those, the maxmin search (its coarse samples' map included)
 };
 
 /// The allowance and placement of job.workpiece.final_part (a mesh; points give no allowance), located at
