@@ -18,7 +18,7 @@ using detail::RawGeometry;
 
 namespace {
 
-enum class Format { Ply, Pcd, Columns, Vtk, Stl, Obj };
+enum class Format { Ply, Pcd, Columns, Vtk, Stl, Obj, Step };
 
 Format format_of(const fs::path& path, const std::string& name) {
     std::string ext = path.extension().string();
@@ -29,15 +29,20 @@ Format format_of(const fs::path& path, const std::string& name) {
     if (ext == ".vtk") return Format::Vtk;
     if (ext == ".stl") return Format::Stl;
     if (ext == ".obj") return Format::Obj;
+    if (ext == ".step" || ext == ".stp") return Format::Step;
     throw InputError(
         name, (ext.empty() ? std::string("file name has no extension") : "unknown file type '" + ext + "'") +
-                  " (known: .ply .pcd .xyz .txt .csv .asc .vtk .stl .obj)");
+                  " (known: .ply .pcd .xyz .txt .csv .asc .vtk .stl .obj .step .stp)");
 }
 
-RawGeometry read_raw(const fs::path& path, const std::string& name) {
+RawGeometry read_raw(const fs::path& path, const std::string& name,
+                     const detail::StepOptions& step = detail::StepOptions{}) {
     const Format format = format_of(path, name);
+    if (format == Format::Step) return detail::read_step(path, name, step);
     const std::string bytes = detail::read_file_bytes(path, name);
     switch (format) {
+        case Format::Step:
+            break;
         case Format::Ply:
             return detail::parse_ply(bytes, name);
         case Format::Pcd:
@@ -170,15 +175,31 @@ std::shared_ptr<open3d::geometry::TriangleMesh> read_mesh(const fs::path& path,
     return to_mesh(read_raw(path, display_name), display_name, units_scale);
 }
 
+bool is_step_file(const fs::path& path) {
+    std::string ext = path.extension().string();
+    std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+    return ext == ".step" || ext == ".stp";
+}
+
 ModelSource read_model(const fs::path& path, const std::string& display_name, double units_scale,
-                       std::vector<std::string>* warnings) {
+                       std::vector<std::string>* warnings, const ModelOptions& options) {
     check_scale(units_scale, display_name);
-    RawGeometry g = read_raw(path, display_name);
+    const Format format = format_of(path, display_name);
+    if (!options.faces.empty() && format != Format::Step)
+        throw InputError(display_name, "faces can be chosen by name in STEP files only");
+    detail::StepOptions step;
+    step.faces = options.faces;
+    if (format == Format::Step) {
+        check_scale(options.step_scale, display_name);
+        units_scale = options.step_scale;
+        if (options.deflection > 0) step.deflection_mm = options.deflection / options.step_scale;
+    }
+    RawGeometry g = read_raw(path, display_name, step);
     pass_warnings(g, display_name, warnings);
     ModelSource model;
     model.file = display_name;
     // STL has no way to hold points alone, so an STL without facets is an error, not an empty cloud.
-    if (!g.triangles.empty() || format_of(path, display_name) == Format::Stl)
+    if (!g.triangles.empty() || format == Format::Stl || format == Format::Step)
         model.mesh = to_mesh(std::move(g), display_name, units_scale);
     else
         model.points = to_cloud(std::move(g), display_name, units_scale);

@@ -4,7 +4,8 @@
 //   points: .ply (ascii, binary little/big endian; extra elements and properties are skipped), .pcd (ascii,
 //           binary, binary_compressed), .xyz .txt .csv (columns separated by spaces, tabs, commas or
 //           semicolons, with or without a header line naming the columns), .vtk (legacy ASCII, its POINTS)
-//   meshes: .stl (ascii, binary), .ply with a face element, .obj (polygons are split into triangles)
+//   meshes: .stl (ascii, binary), .ply with a face element, .obj (polygons are split into triangles),
+//           .step .stp (Open CASCADE, triangulated; in millimetres, read_model converts to the job's units)
 // Every reader either returns the whole file or throws InputError naming the file and the problem: a
 // missing, unreadable, truncated, malformed, empty or NaN-only file never yields a partial result. The
 // readers never print (Open3D's own console output is silenced while they run).
@@ -41,10 +42,23 @@ std::shared_ptr<open3d::geometry::TriangleMesh> read_mesh(const std::filesystem:
                                                           const std::string& display_name,
                                                           double units_scale = 1.0);
 
-/// Reads a model as the job uses it (pipeline/job.hpp): a mesh when the file has faces (STL always; PLY and
-/// OBJ when they have faces), its points otherwise. ModelSource::file is `display_name`.
+/// What reading a model takes beyond its units: STEP's (.step, .stp), whose coordinates come in the unit the
+/// file declares, read as millimetres.
+struct ModelOptions {
+    double step_scale = 1.0;         ///< STEP: job units per millimetre (units_scale does not apply)
+    std::vector<std::string> faces;  ///< STEP: only the faces the file names so; empty: every face
+    double deflection = 0.0;         ///< STEP: the triangulation's chord tolerance, job units; 0: 0.02 mm
+};
+
+/// Reads a model as the job uses it (pipeline/job.hpp): a mesh when the file has faces (STL and STEP always;
+/// PLY and OBJ when they have faces), its points otherwise. ModelSource::file is `display_name`. Faces by
+/// name for any other format than STEP are refused.
 ModelSource read_model(const std::filesystem::path& path, const std::string& display_name,
-                       double units_scale = 1.0, std::vector<std::string>* warnings = nullptr);
+                       double units_scale = 1.0, std::vector<std::string>* warnings = nullptr,
+                       const ModelOptions& options = {});
+
+/// True for the extensions read as STEP.
+bool is_step_file(const std::filesystem::path& path);
 
 /// Writes `cloud` as binary little-endian PLY (float x y z, and nx ny nz / red green blue when the cloud
 /// has them), atomically. `comment` goes into the header (e.g. "units mm"). Throws std::runtime_error

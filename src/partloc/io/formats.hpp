@@ -34,6 +34,16 @@ RawGeometry parse_obj(std::string_view bytes, const std::string& name);
 RawGeometry parse_columns(std::string_view bytes, const std::string& name);
 /// Legacy VTK, ASCII: the POINTS section.
 RawGeometry parse_vtk(std::string_view bytes, const std::string& name);
+/// How a STEP file is read: which faces, and the triangulation's tolerances.
+struct StepOptions {
+    std::vector<std::string> faces;  ///< only the faces the file names so; empty: every face
+    double deflection_mm = 0.02;     ///< chord tolerance of the triangulation (mm)
+    double angle_rad = 0.2;          ///< angular tolerance of the triangulation
+};
+/// STEP (io/step_format.cpp): the shapes' faces triangulated, in millimetres whatever unit the file
+/// declares; a file that declares none, has no shape, or lacks a face asked for by name is refused.
+RawGeometry read_step(const std::filesystem::path& path, const std::string& name, const StepOptions& options);
+
 /// PCD: ascii parsed here; binary and binary_compressed checked here against the header, decoded by Open3D.
 RawGeometry read_pcd(const std::filesystem::path& path, std::string_view bytes, const std::string& name);
 

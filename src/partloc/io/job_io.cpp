@@ -38,6 +38,7 @@ constexpr double kMaxMillimetres = 1e7;
 struct FileRef {
     std::string file;
     double scale = 1.0;
+    ModelOptions model;  ///< STEP: its scale to the job's units, the faces by name, the triangulation
 };
 
 /// One data file to read once the job is checked: read() fills its place in the Job.
@@ -172,11 +173,34 @@ class JobParser {
     }
 
     FileRef file_ref(const YAML::Node& n, const std::string& path) const {
-        if (n.IsScalar()) return {text(n, path), 1.0};
-        check_map(n, path, {"file", "units"});
-        FileRef ref{text(required(n, path, "file"), join(path, "file")), 1.0};
-        if (n["units"].IsDefined())
+        FileRef ref;
+        if (n.IsScalar()) {
+            ref.file = text(n, path);
+        } else {
+            check_map(n, path, {"file", "units", "faces"});
+            ref.file = text(required(n, path, "file"), join(path, "file"));
+        }
+        const bool step = is_step_file(ref.file);
+        // STEP: millimetres from the reader, triangulated to a tenth of the scanner's spacing where the job
+        // gives it (the model is sampled at about the spacing), else to 0.02 mm.
+        ref.model.step_scale = 1.0 / job_mm_per_unit_;
+        if (scanner_spacing_ > 0) ref.model.deflection = 0.1 * scanner_spacing_;
+        if (n.IsScalar()) return ref;
+        if (n["units"].IsDefined()) {
+            if (step)
+                fail(n["units"], join(path, "units"),
+                     "a STEP file says its own units; leave units out for '" + ref.file + "'");
             ref.scale = unit_scale(n["units"], join(path, "units")) / job_mm_per_unit_;
+        }
+        if (const YAML::Node f = n["faces"]; f.IsDefined()) {
+            const std::string at = join(path, "faces");
+            if (!step)
+                fail(f, at, "faces can be chosen by name in STEP files only, not in '" + ref.file + "'");
+            if (!f.IsSequence() || f.size() == 0)
+                fail(f, at, "expected a list of the faces' names in the STEP file, found " + describe(f));
+            for (std::size_t i = 0; i < f.size(); ++i)
+                ref.model.faces.push_back(text(f[i], at + "[" + std::to_string(i) + "]"));
+        }
         return ref;
     }
 
@@ -322,6 +346,7 @@ class JobParser {
 
     std::string job_name_;
     double job_mm_per_unit_ = 1.0;
+    double scanner_spacing_ = 0.0;  ///< scanner.point_spacing where the job gives it (job units)
     Machine machine_;
     std::vector<ProbedPose> probed_;
 };
@@ -345,6 +370,7 @@ void JobParser::parse(const YAML::Node& root, Job& job, std::vector<FileTask>& t
         if (s["point_spacing"].IsDefined()) {
             job.scanner.point_spacing = number_at_least(s["point_spacing"], "scanner.point_spacing", 0, true);
             check_length(s["point_spacing"], "scanner.point_spacing", *job.scanner.point_spacing);
+            scanner_spacing_ = *job.scanner.point_spacing;
         }
         if (s["noise"].IsDefined()) {
             job.scanner.noise = number_at_least(s["noise"], "scanner.noise", 0, false);
@@ -388,7 +414,7 @@ void JobParser::parse_fiducials(const YAML::Node& root, Job& job, std::vector<Fi
                              : 0.005 / job_mm_per_unit_;
         tasks.push_back(
             {model, [&fid](const fs::path& p, const FileRef& r, std::vector<std::string>& warnings) {
-                 fid.model = read_model(p, r.file, r.scale, &warnings);
+                 fid.model = read_model(p, r.file, r.scale, &warnings, r.model);
              }});
     }
 }
@@ -417,7 +443,7 @@ void JobParser::parse_workpiece(const YAML::Node& root, Job& job, std::vector<Fi
             const FileRef surfaces = file_ref(required(d[i], at, "surfaces"), at + ".surfaces");
             tasks.push_back(
                 {surfaces, [&datum](const fs::path& p, const FileRef& r, std::vector<std::string>& warnings) {
-                     datum.surfaces = read_model(p, r.file, r.scale, &warnings);
+                     datum.surfaces = read_model(p, r.file, r.scale, &warnings, r.model);
                  }});
         }
     }
@@ -439,7 +465,7 @@ void JobParser::parse_workpiece(const YAML::Node& root, Job& job, std::vector<Fi
             file_ref(required(w, "workpiece", "reference_surfaces"), "workpiece.reference_surfaces");
         tasks.push_back(
             {reference, [&job](const fs::path& p, const FileRef& r, std::vector<std::string>& warnings) {
-                 job.workpiece.reference_surfaces = read_model(p, r.file, r.scale, &warnings);
+                 job.workpiece.reference_surfaces = read_model(p, r.file, r.scale, &warnings, r.model);
              }});
     }
     if (w["datum"].IsDefined()) job.workpiece.T_machine_workpiece = pose(w["datum"], "workpiece.datum");
@@ -447,7 +473,7 @@ void JobParser::parse_workpiece(const YAML::Node& root, Job& job, std::vector<Fi
         const FileRef part = file_ref(w["final_part"], "workpiece.final_part");
         tasks.push_back(
             {part, [&job](const fs::path& p, const FileRef& r, std::vector<std::string>& warnings) {
-                 job.workpiece.final_part = read_model(p, r.file, r.scale, &warnings);
+                 job.workpiece.final_part = read_model(p, r.file, r.scale, &warnings, r.model);
              }});
     }
     job.workpiece.moves_with = axis_chain(w["moves_with"], "workpiece.moves_with");
