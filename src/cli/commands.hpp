@@ -21,6 +21,10 @@ int command_run(const std::string& job_file, const std::string& out_dir, int thr
 int command_demo(const std::string& out_dir, std::uint64_t seed, int threads,
                  Progress progress = Progress::Auto);
 
+/// `partloc check JOB`: loads and checks the job and its files, prints what a run would take and the
+/// warnings that can be seen before registering; 0, or 2 for bad input (one line naming the file).
+int command_check(const std::string& job_file);
+
 /// `partloc simulate --out DIR [--seed N]`: writes one virtual job (scans, models, job.yaml, truth.json).
 int command_simulate(const std::string& out_dir, std::uint64_t seed);
 

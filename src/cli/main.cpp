@@ -28,6 +28,11 @@ int main(int argc, char** argv) {
         run->add_flag("--progress", progress, "tell each stage and scan on stderr (default: on a terminal)");
     run->add_flag("--quiet", quiet, "tell nothing while working")->excludes(progress_flag);
 
+    std::string check_file;
+    auto* check =
+        app.add_subcommand("check", "load and check a job and its files; print what a run would take");
+    check->add_option("job", check_file, "job file (YAML or JSON)")->required();
+
     auto* demo = app.add_subcommand("demo", "the paper's experiment re-created in a virtual cell");
     demo->add_option("--out", demo_out, "write each test's job and results here");
     demo->add_option("--seed", demo_seed, "seed of the virtual scanner");
@@ -49,6 +54,7 @@ int main(int argc, char** argv) {
     using partloc::cli::Progress;
     const Progress tell = progress ? Progress::On : quiet ? Progress::Off : Progress::Auto;
     if (*run) return partloc::cli::command_run(job_file, out_dir, threads, seed, cache_dir, !no_cache, tell);
+    if (*check) return partloc::cli::command_check(check_file);
     if (*demo) return partloc::cli::command_demo(demo_out, demo_seed, threads, tell);
     if (*simulate) return partloc::cli::command_simulate(sim_out, sim_seed);
     return 2;

@@ -16,6 +16,7 @@
 #include "partloc/core/format.hpp"
 #include "partloc/core/register_scan.hpp"
 #include "partloc/core/stock.hpp"
+#include "partloc/pipeline/job_checks.hpp"
 #include "partloc/pipeline/machining.hpp"
 #include "partloc/pipeline/part.hpp"
 #include "partloc/pipeline/uncertainty.hpp"
@@ -319,11 +320,13 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     JobResult result;
     result.units = job.units;
     WorkpieceResult& w = result.workpiece;
+    std::vector<std::string> checks;  // the job's own checks' warnings
     w.T_machine_workpiece_nominal = job.workpiece.T_machine_workpiece;
     w.fit = job.workpiece.fit == WorkpieceFitMode::Datums ? "datums" : "simultaneous";
     const auto done = [&](std::string reason) {
         w.reason = std::move(reason);
-        result.warnings = job.warnings;  // what reading the files found, then each scan's
+        result.warnings = job.warnings;  // what reading the files found, the job's checks, then each scan's
+        result.warnings.insert(result.warnings.end(), checks.begin(), checks.end());
         for (const ScanResult& r : result.scans)
             for (const std::string& warning : r.warnings) result.warnings.push_back(r.file + ": " + warning);
         for (const std::string& warning : result.machining.warnings) result.warnings.push_back(warning);
@@ -339,6 +342,13 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     tell(format("preparing %zu fiducial models and measuring %zu scans", job.fiducials.size(),
                 job.scans.size()));
     const JobPreparation prep = prepare_job(job, settings);
+    // Scans whose size does not fit the fiducials' in the job's units (pipeline/job_checks.hpp).
+    {
+        // The spacing measured on each scan; a spacing the job gives says nothing of the scans' units.
+        std::vector<double> spacings;
+        for (const Scale& s : prep.scales) spacings.push_back(job.scanner.point_spacing ? 0.0 : s.spacing);
+        checks = unit_warnings(job, summarise_scans(job, &spacings));
+    }
 
     // Register the scans (§3.4.1, in parallel; each scan's outcome depends on that scan alone).
     const std::size_t n = job.scans.size();

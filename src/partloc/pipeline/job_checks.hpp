@@ -1,0 +1,36 @@
+#pragma once
+// Checks of a job against its own data that need no registration (issue 27): what `partloc check` prints
+// and what `run` adds to its warnings. The checks that need the scans registered (axes left out, reference
+// surfaces that are the finished faces, a fiducial probed wrong) are the pipeline's.
+#include <string>
+#include <vector>
+
+#include "partloc/pipeline/job.hpp"
+
+namespace partloc {
+
+/// One scan as read: its valid points, their spacing (median nearest-neighbour distance, measured) and the
+/// diagonal of their bounding box, in job units.
+struct ScanSummary {
+    std::size_t points = 0;
+    double spacing = 0.0;
+    double extent = 0.0;
+};
+
+/// Per scan of the job; the spacing measured on it unless `spacings` gives it (run_job's own measure).
+std::vector<ScanSummary> summarise_scans(const Job& job, const std::vector<double>* spacings = nullptr);
+
+struct UnitCheckSettings {
+    /// A scan is plausible in a unit when its points span from `min_extent` to `max_extent` fiducials
+    /// (median model diagonal) and lie at most `max_spacing` of a fiducial apart (it must show a fiducial
+    /// with thousands of points). The simulated cells' scans span 6-10 fiducials: m, in and um for mm are
+    /// told, cm is not.
+    double min_extent = 0.5, max_extent = 300.0, max_spacing = 0.1;
+};
+
+/// A sentence for each scan whose size is implausible against the fiducials' in the job's units, naming
+/// the unit in which it would be plausible ("did you mean units: m?") where one is.
+std::vector<std::string> unit_warnings(const Job& job, const std::vector<ScanSummary>& scans,
+                                       const UnitCheckSettings& settings = {});
+
+}  // namespace partloc

@@ -1,0 +1,113 @@
+// The job's own checks (pipeline/job_checks.hpp) and `partloc check` (issue 27): scans in other units than
+// the job says are named with the unit they would fit, and correct jobs draw no warning.
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <nlohmann/json.hpp>
+#include <regex>
+
+#include "partloc/io/cloud_io.hpp"
+#include "partloc/pipeline/job_checks.hpp"
+#include "partloc/sim/scenario.hpp"
+#include "test_util.hpp"
+
+namespace fs = std::filesystem;
+using namespace partloc;
+
+namespace {
+
+int sh(const std::string& cmd) {
+    const int status = std::system(cmd.c_str());
+    return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+
+/// The job with every scan's coordinates multiplied by k, as if its files were written in another unit.
+Job scaled_scans(Job job, double k) {
+    for (Scan& s : job.scans) {
+        auto c = std::make_shared<open3d::geometry::PointCloud>(*s.points);
+        for (auto& p : c->points_) p *= k;
+        s.points = c;
+    }
+    return job;
+}
+
+}  // namespace
+
+TEST(JobChecks, ScansInOtherUnitsAreNamedAndCorrectJobsAreNot) {
+    for (std::uint64_t seed : {3u, 11u}) {
+        const sim::SimulatedJob s = sim::simulate_random_cell(seed);
+        EXPECT_TRUE(unit_warnings(s.job, summarise_scans(s.job)).empty()) << "seed " << seed;
+        const struct {
+            double k;
+            const char* unit;
+        } cases[] = {{0.001, "units: m"}, {1 / 25.4, "units: in"}, {1000.0, "units: um"}};
+        // (A factor of 10, cm for mm, leaves a scan of a few fiducials' size: not told from a close view.)
+        for (const auto& c : cases) {
+            const Job job = scaled_scans(s.job, c.k);
+            const std::vector<std::string> w = unit_warnings(job, summarise_scans(job));
+            ASSERT_EQ(w.size(), job.scans.size())
+                << "seed " << seed << ", scans x " << c.k << ": " << (w.empty() ? "" : w[0]);
+            EXPECT_NE(w[0].find(job.scans[0].file), std::string::npos) << w[0];
+            EXPECT_NE(w[0].find(std::string("did you mean ") + c.unit), std::string::npos) << w[0];
+        }
+    }
+}
+
+TEST(JobChecks, CheckPrintsTheJobAndRunWarnsOfTheUnits) {
+    test::TempFolder tmp("partloc_check");
+    const fs::path cell = tmp.dir / "cell", log = tmp.dir / "log.txt";
+    ASSERT_EQ(sh("'" PARTLOC_EXE "' simulate --out '" + cell.string() + "' --seed 3 > /dev/null 2>&1"), 0);
+    ASSERT_EQ(
+        sh("'" PARTLOC_EXE "' check '" + (cell / "job.yaml").string() + "' > '" + log.string() + "' 2>&1"), 0)
+        << test::slurp(log);
+    const std::string good = test::slurp(log);
+    EXPECT_NE(good.find("scans: 6"), std::string::npos) << good;
+    EXPECT_NE(good.find("fiducials: "), std::string::npos) << good;
+    EXPECT_NE(good.find("units: mm"), std::string::npos) << good;
+    EXPECT_NE(good.find("warnings: none"), std::string::npos) << good;
+
+    // The scans written in metres, the job saying nothing of it.
+    const std::string job = test::slurp(cell / "job.yaml");
+    std::smatch m;
+    std::string edited = job;
+    for (int i = 1; i <= 6; ++i) {
+        char name[32];
+        std::snprintf(name, sizeof name, "scans/scan_%02d.ply", i);
+        const auto c = io::read_point_cloud(cell / name, name);
+        for (auto& p : c->points_) p *= 0.001;
+        char metres[32];
+        std::snprintf(metres, sizeof metres, "scans/scan_%02d_m.ply", i);
+        io::write_point_cloud(cell / metres, *c);
+        edited = std::regex_replace(edited, std::regex(name), metres);
+    }
+    ASSERT_NE(edited, job);
+    test::spit(cell / "metres.yaml", edited);
+    ASSERT_EQ(
+        sh("'" PARTLOC_EXE "' check '" + (cell / "metres.yaml").string() + "' > '" + log.string() + "' 2>&1"),
+        0);
+    const std::string bad = test::slurp(log);
+    EXPECT_NE(bad.find("warnings: 6"), std::string::npos) << bad;
+    EXPECT_NE(bad.find("did you mean units: m"), std::string::npos) << bad;
+    // `run` says the same in result.json's warnings (whatever it registers).
+    const fs::path out = tmp.dir / "out";
+    sh("PARTLOC_CACHE='" + (tmp.dir / "cache").string() + "' '" PARTLOC_EXE "' run '" +
+       (cell / "metres.yaml").string() + "' --out '" + out.string() + "' --threads 2 > '" + log.string() +
+       "' 2>&1");
+    const auto result = nlohmann::json::parse(test::slurp(out / "result.json"));
+    int named = 0;
+    for (const auto& w : result["warnings"])
+        named += w.get<std::string>().find("did you mean units: m") != std::string::npos;
+    EXPECT_EQ(named, 6) << result["warnings"].dump();
+
+    // A job that cannot be read: exit 2, one line naming the file.
+    test::spit(cell / "broken.yaml",
+               std::regex_replace(job, std::regex("scans/scan_01.ply"), "scans/none.ply"));
+    ASSERT_EQ(
+        sh("'" PARTLOC_EXE "' check '" + (cell / "broken.yaml").string() + "' > '" + log.string() + "' 2>&1"),
+        2);
+    const std::string refused = test::slurp(log);
+    EXPECT_NE(refused.find("none.ply"), std::string::npos) << refused;
+    EXPECT_EQ(std::count(refused.begin(), refused.end(), '\n'), 1) << refused;
+}
