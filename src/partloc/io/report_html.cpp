@@ -7,6 +7,7 @@
 #include <sstream>
 
 #include "partloc/core/geometry.hpp"
+#include "partloc/core/localize.hpp"
 #include "partloc/io/report_view3d.hpp"
 
 namespace partloc::io {
@@ -306,12 +307,29 @@ static void scans_section(std::ostream& h, const Job& job, const JobResult& resu
         h << "</td></tr>\n";
     }
     if (result.scans.empty()) h << "<tr><td colspan=12 class=dim>no scan results</td></tr>\n";
-    h << "</table>\n";
+    h << "</table>\n<p class=dim><b>status</b>: registered (placed in the machine frame by the fiducials "
+         "named) or rejected (the message says why). <b>score</b>: the winning fiducial fit's coverage × (1 "
+         "− "
+         "violation), 0 to 1 (see the next table). <b>rmse</b>: RMS distance of the fiducial's points to its "
+         "model. <b>spacing</b>, <b>noise</b>: the scan's point spacing and 1-sigma noise, as the job gives "
+         "them or measured on the scan.</p>\n";
 }
 
 /// Each scan's fiducial fits, accepted or rejected and why.
 static void fits_section(std::ostream& h, const JobResult& result, const Formatter& f, const std::string& u) {
-    h << "<h2>Fiducials tried per scan</h2>\n";
+    const LocalizeSettings limits;  // the defaults the verification applies
+    h << "<h2>Fiducials tried per scan</h2>\n<p class=dim><b>coverage</b>: the fraction of the model's "
+         "surface facing the scanner that the scan shows (accepted from "
+      << fixed(limits.min_coverage, 2)
+      << "). <b>violation</b>: the fraction of the observed model surface the scanner saw through, points "
+         "behind where the model would block the view (accepted up to "
+      << fixed(limits.max_violation, 2)
+      << "). <b>conditioning</b>: how well the points fix all six degrees of freedom, 0 (a plane alone) to "
+         "0.33 (accepted from "
+      << fixed(limits.min_conditioning, 3)
+      << "). <b>inliers</b>: scan points on the model's surface. <b>score</b>: coverage × (1 − violation). "
+         "\"where the others put it\": checked at the pose the scan's other fiducials give, not searched "
+         "for.</p>\n";
     for (std::size_t i = 0; i < result.scans.size(); ++i) {
         const ScanResult& s = result.scans[i];
         h << "<h3>Scan " << i + 1 << ": " << escape_html(s.file) << "</h3>\n";
