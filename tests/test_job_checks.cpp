@@ -10,6 +10,7 @@
 
 #include "partloc/io/cloud_io.hpp"
 #include "partloc/pipeline/job_checks.hpp"
+#include "partloc/pipeline/run.hpp"
 #include "partloc/sim/scenario.hpp"
 #include "test_util.hpp"
 
@@ -110,4 +111,34 @@ TEST(JobChecks, CheckPrintsTheJobAndRunWarnsOfTheUnits) {
     const std::string refused = test::slurp(log);
     EXPECT_NE(refused.find("none.ply"), std::string::npos) << refused;
     EXPECT_EQ(std::count(refused.begin(), refused.end(), '\n'), 1) << refused;
+}
+
+// The finished part's faces given as the reference surfaces (issue 27's first mistake): located off by
+// the allowance with a tight interval, unless the check names the faces the scans show elsewhere.
+TEST(JobChecks, FinishedFacesGivenAsTheReferenceAreNamed) {
+    const sim::SimulatedJob s = sim::simulate_random_cell(106);
+    RunSettings settings;
+    settings.threads = 2;
+    settings.build_stock = false;
+    const auto named = [](const JobResult& r) {
+        int n = 0;
+        for (const std::string& w : r.warnings)
+            n += w.find("are the reference surfaces the as-built faces?") != std::string::npos;
+        return n;
+    };
+    const JobResult right = run_job(s.job, settings);
+    ASSERT_TRUE(right.workpiece.valid) << right.workpiece.reason;
+    EXPECT_EQ(named(right), 0);
+    Job wrong = s.job;
+    ASSERT_TRUE(wrong.workpiece.final_part);
+    wrong.workpiece.reference_surfaces = *wrong.workpiece.final_part;
+    const JobResult r = run_job(wrong, settings);
+    EXPECT_GE(named(r), 1);
+    for (const std::string& w : r.warnings)
+        if (w.find("as-built faces?") != std::string::npos) {
+            EXPECT_EQ(w.rfind("workpiece.reference_surfaces: the scans lie ", 0), 0u) << w;
+            std::smatch m;  // by the sim's allowance, 1.0 mm
+            ASSERT_TRUE(std::regex_search(w, m, std::regex("lie ([0-9.]+) mm inside"))) << w;
+            EXPECT_NEAR(std::stod(m[1].str()), 1.0, 0.05) << w;
+        }
 }

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <map>
 
 #include "partloc/core/cloud_stats.hpp"
 #include "partloc/core/format.hpp"
@@ -73,6 +74,91 @@ std::vector<std::string> unit_warnings(const Job& job, const std::vector<ScanSum
         else
             w += "; are the scans and the models in the units the job says?";
         out.push_back(w);
+    }
+    return out;
+}
+
+namespace {
+
+int find_root(std::vector<int>& parent, int i) {
+    while (parent[i] != i) i = parent[i] = parent[parent[i]];
+    return i;
+}
+
+double median(std::vector<double> v) {
+    const std::size_t mid = v.size() / 2;
+    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(mid), v.end());
+    return v[mid];
+}
+
+}  // namespace
+
+std::vector<std::string> reference_offset_warnings(const std::vector<Eigen::Vector3d>& points,
+                                                   const std::vector<Eigen::Vector3d>& normals,
+                                                   const Surface& reference,
+                                                   const Eigen::Isometry3d& T_located_nominal, double noise,
+                                                   double spacing, const std::string& units,
+                                                   const ReferenceCheckSettings& settings) {
+    std::vector<std::string> out;
+    const int n = static_cast<int>(reference.points.size());
+    if (n == 0 || normals.size() != points.size() || reference.normals.size() != reference.points.size() ||
+        !(reference.spacing > 0))
+        return out;
+    constexpr double kPi = 3.14159265358979323846;
+    const double cos_face = std::cos(settings.face_angle_deg * kPi / 180.0);
+    // The reference samples' faces: neighbours within 2.5 spacings whose normals agree, joined.
+    std::vector<int> parent(n);
+    for (int i = 0; i < n; ++i) parent[i] = i;
+    int idx[SampleGrid::kMaxK];
+    double d2[SampleGrid::kMaxK];
+    for (int i = 0; i < n; ++i) {
+        const int k = reference.nearest(reference.points[i], 12, 2.5 * reference.spacing, idx, d2);
+        for (int j = 0; j < k; ++j)
+            if (reference.normals[idx[j]].dot(reference.normals[i]) >= cos_face)
+                parent[find_root(parent, idx[j])] = find_root(parent, i);
+    }
+    std::vector<int> face(n);
+    for (int i = 0; i < n; ++i) face[i] = find_root(parent, i);
+    // Each scan point near a face: its signed distance along the face's normal (+: outside the reference).
+    const double band = settings.band_spacings * std::max(noise, spacing);
+    const double beside = 2.0 * reference.spacing;
+    const Eigen::Isometry3d T_nominal_located = T_located_nominal.inverse();
+    std::map<int, std::vector<double>> offsets;
+    for (std::size_t p = 0; p < points.size(); ++p) {
+        const Eigen::Vector3d q = T_nominal_located * points[p];
+        const Eigen::Vector3d m = T_nominal_located.linear() * normals[p];
+        double s2 = 0.0;
+        const int k = reference.nearest(q, &s2, std::hypot(band, beside));
+        if (k < 0) continue;
+        const Eigen::Vector3d& nk = reference.normals[k];
+        const Eigen::Vector3d d = q - reference.points[k];
+        const double along = nk.dot(d);
+        if (std::abs(along) > band || (d - along * nk).norm() > beside || m.dot(nk) < cos_face) continue;
+        offsets[face[k]].push_back(along);
+    }
+    std::map<int, std::pair<Eigen::Vector3d, int>> centres;  // each face's samples' centre, to name it by
+    for (int i = 0; i < n; ++i) {
+        auto& c = centres.try_emplace(face[i], Eigen::Vector3d::Zero(), 0).first->second;
+        c.first += reference.points[i];
+        ++c.second;
+    }
+    for (auto& [f, v] : offsets) {
+        if (static_cast<double>(v.size()) < settings.min_points) continue;
+        const double mid = median(v);
+        std::vector<double> dev;
+        dev.reserve(v.size());
+        for (double x : v) dev.push_back(std::abs(x - mid));
+        const double sigma = 1.4826 * median(dev);
+        if (std::abs(mid) <= settings.offset_noises * noise || sigma > settings.sheet_noises * noise)
+            continue;
+        const Eigen::Vector3d nn = T_located_nominal.linear() * reference.normals[f];
+        const Eigen::Vector3d at = T_located_nominal * (centres[f].first / centres[f].second);
+        out.push_back(
+            format("the scans lie %.3g %s %s the reference face at [%.3f, %.3f, %.3f] (normal "
+                   "[%.2f, %.2f, %.2f]), parallel to it, over %zu points: are the reference surfaces "
+                   "the as-built faces? (The finished part's faces are not.)",
+                   std::abs(mid), units.c_str(), mid > 0 ? "outside" : "inside", at.x(), at.y(), at.z(),
+                   nn.x(), nn.y(), nn.z(), v.size()));
     }
     return out;
 }

@@ -2,9 +2,11 @@
 // Checks of a job against its own data that need no registration (issue 27): what `partloc check` prints
 // and what `run` adds to its warnings. The checks that need the scans registered (axes left out, reference
 // surfaces that are the finished faces, a fiducial probed wrong) are the pipeline's.
+#include <Eigen/Geometry>
 #include <string>
 #include <vector>
 
+#include "partloc/core/surface.hpp"
 #include "partloc/pipeline/job.hpp"
 
 namespace partloc {
@@ -32,5 +34,26 @@ struct UnitCheckSettings {
 /// the unit in which it would be plausible ("did you mean units: m?") where one is.
 std::vector<std::string> unit_warnings(const Job& job, const std::vector<ScanSummary>& scans,
                                        const UnitCheckSettings& settings = {});
+
+struct ReferenceCheckSettings {
+    double face_angle_deg = 20.0;  ///< reference samples of one face: neighbours whose normals turn less
+    double min_points = 200;       ///< a face is judged on at least this many scan points
+    double band_spacings = 10.0;   ///< points within this many of the larger of spacing and noise
+    double offset_noises = 5.0;    ///< a face is off when its points' median lies farther than this
+    double sheet_noises = 3.0;     ///< ... and they scatter about it as a sheet, less than this
+};
+
+/// The located reference surfaces against the scans (issue 27: "reference surfaces that are not the as-built
+/// ones"): for each face of the reference samples (`points`, `normals`, nominal frame, `spacing` apart),
+/// the scan points (machine frame, with normals) whose nearest sample on it lies within the band, square to
+/// the face and within two spacings beside it, facing as it does. A face whose points lie as a sheet parallel
+/// to it, offset by more than the noise allows, is a face the scans show elsewhere: the finished part's faces
+/// given for the as-built ones. A sentence per such face (units `units`), empty when none.
+std::vector<std::string> reference_offset_warnings(const std::vector<Eigen::Vector3d>& points,
+                                                   const std::vector<Eigen::Vector3d>& normals,
+                                                   const Surface& reference,
+                                                   const Eigen::Isometry3d& T_located_nominal, double noise,
+                                                   double spacing, const std::string& units,
+                                                   const ReferenceCheckSettings& settings = {});
 
 }  // namespace partloc
