@@ -1,7 +1,6 @@
 // The job's own checks (pipeline/job_checks.hpp) and `partloc check` (issue 27): scans in other units than
 // the job says are named with the unit they would fit, and correct jobs draw no warning.
 #include <gtest/gtest.h>
-#include <sys/wait.h>
 
 #include <cstdio>
 #include <filesystem>
@@ -18,11 +17,6 @@ namespace fs = std::filesystem;
 using namespace partloc;
 
 namespace {
-
-int sh(const std::string& cmd) {
-    const int status = std::system(cmd.c_str());
-    return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-}
 
 /// The job with every scan's coordinates multiplied by k, as if its files were written in another unit.
 Job scaled_scans(Job job, double k) {
@@ -59,9 +53,11 @@ TEST(JobChecks, ScansInOtherUnitsAreNamedAndCorrectJobsAreNot) {
 TEST(JobChecks, CheckPrintsTheJobAndRunWarnsOfTheUnits) {
     test::TempFolder tmp("partloc_check");
     const fs::path cell = tmp.dir / "cell", log = tmp.dir / "log.txt";
-    ASSERT_EQ(sh("'" PARTLOC_EXE "' simulate --out '" + cell.string() + "' --seed 3 > /dev/null 2>&1"), 0);
     ASSERT_EQ(
-        sh("'" PARTLOC_EXE "' check '" + (cell / "job.yaml").string() + "' > '" + log.string() + "' 2>&1"), 0)
+        test::shell("'" PARTLOC_EXE "' simulate --out '" + cell.string() + "' --seed 3 > /dev/null 2>&1"), 0);
+    ASSERT_EQ(test::shell("'" PARTLOC_EXE "' check '" + (cell / "job.yaml").string() + "' > '" +
+                          log.string() + "' 2>&1"),
+              0)
         << test::slurp(log);
     const std::string good = test::slurp(log);
     EXPECT_NE(good.find("scans: 6"), std::string::npos) << good;
@@ -85,17 +81,17 @@ TEST(JobChecks, CheckPrintsTheJobAndRunWarnsOfTheUnits) {
     }
     ASSERT_NE(edited, job);
     test::spit(cell / "metres.yaml", edited);
-    ASSERT_EQ(
-        sh("'" PARTLOC_EXE "' check '" + (cell / "metres.yaml").string() + "' > '" + log.string() + "' 2>&1"),
-        0);
+    ASSERT_EQ(test::shell("'" PARTLOC_EXE "' check '" + (cell / "metres.yaml").string() + "' > '" +
+                          log.string() + "' 2>&1"),
+              0);
     const std::string bad = test::slurp(log);
     EXPECT_NE(bad.find("warnings: 6"), std::string::npos) << bad;
     EXPECT_NE(bad.find("did you mean units: m"), std::string::npos) << bad;
     // `run` says the same in result.json's warnings (whatever it registers).
     const fs::path out = tmp.dir / "out";
-    sh("PARTLOC_CACHE='" + (tmp.dir / "cache").string() + "' '" PARTLOC_EXE "' run '" +
-       (cell / "metres.yaml").string() + "' --out '" + out.string() + "' --threads 2 > '" + log.string() +
-       "' 2>&1");
+    test::shell("PARTLOC_CACHE='" + (tmp.dir / "cache").string() + "' '" PARTLOC_EXE "' run '" +
+                (cell / "metres.yaml").string() + "' --out '" + out.string() + "' --threads 2 > '" +
+                log.string() + "' 2>&1");
     const auto result = nlohmann::json::parse(test::slurp(out / "result.json"));
     int named = 0;
     for (const auto& w : result["warnings"])
@@ -105,9 +101,9 @@ TEST(JobChecks, CheckPrintsTheJobAndRunWarnsOfTheUnits) {
     // A job that cannot be read: exit 2, one line naming the file.
     test::spit(cell / "broken.yaml",
                std::regex_replace(job, std::regex("scans/scan_01.ply"), "scans/none.ply"));
-    ASSERT_EQ(
-        sh("'" PARTLOC_EXE "' check '" + (cell / "broken.yaml").string() + "' > '" + log.string() + "' 2>&1"),
-        2);
+    ASSERT_EQ(test::shell("'" PARTLOC_EXE "' check '" + (cell / "broken.yaml").string() + "' > '" +
+                          log.string() + "' 2>&1"),
+              2);
     const std::string refused = test::slurp(log);
     EXPECT_NE(refused.find("none.ply"), std::string::npos) << refused;
     EXPECT_EQ(std::count(refused.begin(), refused.end(), '\n'), 1) << refused;

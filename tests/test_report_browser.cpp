@@ -2,7 +2,6 @@
 // loads without a script error, its 3D view draws, and a screenshot of the view is not blank (issue 27).
 #include <gtest/gtest.h>
 #include <open3d/io/ImageIO.h>
-#include <sys/wait.h>
 
 #include <cstdlib>
 #include <filesystem>
@@ -16,11 +15,6 @@ namespace fs = std::filesystem;
 using namespace partloc;
 
 namespace {
-
-int sh(const std::string& cmd) {
-    const int status = std::system(cmd.c_str());
-    return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-}
 
 fs::path chromium() {
     if (const char* env = std::getenv("PARTLOC_CHROMIUM")) return env;
@@ -44,10 +38,11 @@ TEST(ReportBrowser, TheThreeDViewLoadsAndDraws) {
         << "Chromium is not installed (scripts/install-deps.sh installs Debian's chromium)";
     test::TempFolder tmp("partloc_report_browser");
     const fs::path cell = tmp.dir / "cell", out = tmp.dir / "out", log = tmp.dir / "log.txt";
-    ASSERT_EQ(sh("'" PARTLOC_EXE "' simulate --out '" + cell.string() + "' --seed 3 > /dev/null 2>&1"), 0);
-    ASSERT_EQ(sh("PARTLOC_CACHE='" + (tmp.dir / "cache").string() + "' '" PARTLOC_EXE "' run '" +
-                 (cell / "job.yaml").string() + "' --out '" + out.string() + "' --threads 2 > '" +
-                 log.string() + "' 2>&1"),
+    ASSERT_EQ(
+        test::shell("'" PARTLOC_EXE "' simulate --out '" + cell.string() + "' --seed 3 > /dev/null 2>&1"), 0);
+    ASSERT_EQ(test::shell("PARTLOC_CACHE='" + (tmp.dir / "cache").string() + "' '" PARTLOC_EXE "' run '" +
+                          (cell / "job.yaml").string() + "' --out '" + out.string() + "' --threads 2 > '" +
+                          log.string() + "' 2>&1"),
               0)
         << test::slurp(log);
     const auto result = nlohmann::json::parse(test::slurp(out / "result.json"));
@@ -58,9 +53,10 @@ TEST(ReportBrowser, TheThreeDViewLoadsAndDraws) {
 
     // The DOM once the scripts ran: #view3d says how many pixels its first frame drew, or the error.
     const fs::path dom = tmp.dir / "dom.html", err = tmp.dir / "chromium.txt";
-    ASSERT_EQ(sh(browser(exe, tmp.dir / "profile1") + "--dump-dom 'file://" + (out / "report.html").string() +
-                 "' > '" + dom.string() + "' 2> '" + err.string() + "'"),
-              0)
+    ASSERT_EQ(
+        test::shell(browser(exe, tmp.dir / "profile1") + "--dump-dom 'file://" +
+                    (out / "report.html").string() + "' > '" + dom.string() + "' 2> '" + err.string() + "'"),
+        0)
         << test::slurp(err);
     const std::string after = test::slurp(dom);
     std::smatch m;
@@ -82,9 +78,10 @@ TEST(ReportBrowser, TheThreeDViewLoadsAndDraws) {
     // A screenshot of the page, tall enough to hold the view where the DOM says it is: inside the canvas,
     // pixels of the first scan's colour (the scan points) and of the allowance's green to blue.
     const fs::path png = tmp.dir / "view.png";
-    ASSERT_EQ(sh(browser(exe, tmp.dir / "profile2") + "--hide-scrollbars --screenshot='" + png.string() +
-                 "' 'file://" + (out / "report.html").string() + "' > '" + err.string() + "' 2>&1"),
-              0)
+    ASSERT_EQ(
+        test::shell(browser(exe, tmp.dir / "profile2") + "--hide-scrollbars --screenshot='" + png.string() +
+                    "' 'file://" + (out / "report.html").string() + "' > '" + err.string() + "' 2>&1"),
+        0)
         << test::slurp(err);
     open3d::geometry::Image image;
     ASSERT_TRUE(open3d::io::ReadImage(png.string(), image)) << png;

@@ -2,9 +2,11 @@
 // Helpers the test files share: whole-file reads and writes, a temporary folder, and the check that a job
 // file is refused with a given phrase.
 #include <gtest/gtest.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <atomic>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -48,6 +50,12 @@ struct TempFolder {
         return dir / name;
     }
 };
+
+/// Runs `command` in the shell; its exit code, or -1 when it did not exit normally.
+inline int shell(const std::string& command) {
+    const int status = std::system(command.c_str());
+    return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
 
 /// io::load_job(job) must throw an InputError that names the job file, contains `phrase` and is one line.
 inline void expect_job_error(const std::filesystem::path& job, const std::string& phrase) {
