@@ -1,12 +1,14 @@
 #include "partloc/io/report_view3d.hpp"
 
+#include <openssl/evp.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
-#include <fstream>
 #include <nlohmann/json.hpp>
 #include <sstream>
 
+#include "partloc/io/formats.hpp"
 #include "partloc/io/report_html.hpp"
 
 #ifndef PARTLOC_THREE_JS_DIR
@@ -21,38 +23,25 @@ namespace {
 
 using Json = nlohmann::ordered_json;
 
-/// RFC 4648 base64 of `n` bytes (the page's arrays; atob decodes them).
-std::string base64(const void* data, std::size_t n) {
-    static const char* kAlphabet = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-    const auto* b = static_cast<const unsigned char*>(data);
-    std::string out;
-    out.reserve((n + 2) / 3 * 4);
-    std::size_t i = 0;
-    for (; i + 2 < n; i += 3) {
-        const unsigned v = (b[i] << 16) | (b[i + 1] << 8) | b[i + 2];
-        for (int s = 18; s >= 0; s -= 6) out += kAlphabet[(v >> s) & 63];
-    }
-    if (i < n) {
-        const unsigned v = (b[i] << 16) | (i + 1 < n ? b[i + 1] << 8 : 0);
-        out += kAlphabet[(v >> 18) & 63];
-        out += kAlphabet[(v >> 12) & 63];
-        out += i + 1 < n ? kAlphabet[(v >> 6) & 63] : '=';
-        out += '=';
-    }
+/// Base64 of the array's bytes (the page's arrays; atob decodes them), by OpenSSL's encoder.
+template <class T>
+std::string base64(const std::vector<T>& v) {
+    const std::size_t n = v.size() * sizeof(T);
+    std::string out(4 * ((n + 2) / 3) + 1, '\0');
+    const int written =
+        EVP_EncodeBlock(reinterpret_cast<unsigned char*>(out.data()),
+                        reinterpret_cast<const unsigned char*>(v.data()), static_cast<int>(n));
+    out.resize(static_cast<std::size_t>(written));
     return out;
 }
 
-template <class T>
-std::string base64(const std::vector<T>& v) {
-    return base64(v.data(), v.size() * sizeof(T));
-}
-
+/// The file's bytes, or false when it cannot be read (a missing three.js leaves the page without the view).
 bool read_file(const fs::path& path, std::string& text) {
-    std::ifstream in(path, std::ios::binary);
-    if (!in) return false;
-    std::ostringstream s;
-    s << in.rdbuf();
-    text = s.str();
+    try {
+        text = detail::read_file_bytes(path, path.string());
+    } catch (const InputError&) {
+        return false;
+    }
     return !text.empty();
 }
 
