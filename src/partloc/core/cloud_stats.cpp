@@ -16,18 +16,10 @@
 #include <string>
 #include <unordered_map>
 
+#include "partloc/core/median.hpp"
 #include "partloc/core/sample_grid.hpp"
 
 namespace partloc {
-
-namespace {
-double median(std::vector<double> v) {
-    if (v.empty()) return 0.0;
-    auto mid = v.begin() + v.size() / 2;
-    std::nth_element(v.begin(), mid, v.end());
-    return *mid;
-}
-}  // namespace
 
 CloudStats measure_cloud(const open3d::geometry::PointCloud& cloud, std::size_t samples, std::uint64_t seed) {
     CloudStats stats;
@@ -55,8 +47,8 @@ CloudStats measure_cloud(const open3d::geometry::PointCloud& cloud, std::size_t 
         Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(C / (idx.size() - 3.0));
         scatter.push_back(std::sqrt(std::max(0.0, es.eigenvalues()(0))));
     }
-    stats.spacing = median(nn);
-    stats.noise = median(scatter);
+    stats.spacing = median_of(nn);
+    stats.noise = median_of(scatter);
     return stats;
 }
 

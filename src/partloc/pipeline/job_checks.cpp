@@ -6,6 +6,8 @@
 
 #include "partloc/core/cloud_stats.hpp"
 #include "partloc/core/format.hpp"
+#include "partloc/core/median.hpp"
+#include "partloc/core/union_find.hpp"
 
 namespace partloc {
 
@@ -78,21 +80,6 @@ std::vector<std::string> unit_warnings(const Job& job, const std::vector<ScanSum
     return out;
 }
 
-namespace {
-
-int find_root(std::vector<int>& parent, int i) {
-    while (parent[i] != i) i = parent[i] = parent[parent[i]];
-    return i;
-}
-
-double median(std::vector<double> v) {
-    const std::size_t mid = v.size() / 2;
-    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(mid), v.end());
-    return v[mid];
-}
-
-}  // namespace
-
 std::vector<std::string> reference_offset_warnings(const std::vector<Eigen::Vector3d>& points,
                                                    const std::vector<Eigen::Vector3d>& normals,
                                                    const Surface& reference,
@@ -144,11 +131,11 @@ std::vector<std::string> reference_offset_warnings(const std::vector<Eigen::Vect
     }
     for (auto& [f, v] : offsets) {
         if (static_cast<double>(v.size()) < settings.min_points) continue;
-        const double mid = median(v);
+        const double mid = median_of(v);
         std::vector<double> dev;
         dev.reserve(v.size());
         for (double x : v) dev.push_back(std::abs(x - mid));
-        const double sigma = 1.4826 * median(dev);
+        const double sigma = 1.4826 * median_of(dev);
         if (std::abs(mid) <= settings.offset_noises * noise || sigma > settings.sheet_noises * noise)
             continue;
         const Eigen::Vector3d nn = T_located_nominal.linear() * reference.normals[f];

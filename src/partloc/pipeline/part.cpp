@@ -8,16 +8,12 @@
 
 #include "partloc/core/cloud_stats.hpp"
 #include "partloc/core/format.hpp"
+#include "partloc/core/median.hpp"
 #include "partloc/core/normals.hpp"
 
 namespace partloc {
 
 namespace {
-
-double median_of(std::vector<double> v) {
-    std::sort(v.begin(), v.end());
-    return v.empty() ? 0.0 : v[v.size() / 2];
-}
 
 /// The largest 1-sigma shift, in any direction, of point a under a registration with this information
 /// (twist [w, v] about the origin); 0 when the information is empty.

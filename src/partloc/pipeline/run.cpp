@@ -14,6 +14,7 @@
 
 #include "partloc/core/cloud_stats.hpp"
 #include "partloc/core/format.hpp"
+#include "partloc/core/median.hpp"
 #include "partloc/core/register_scan.hpp"
 #include "partloc/core/stock.hpp"
 #include "partloc/pipeline/job_checks.hpp"
@@ -28,11 +29,6 @@ namespace {
 using Clock = std::chrono::steady_clock;
 double seconds_since(Clock::time_point t0) {
     return std::chrono::duration<double>(Clock::now() - t0).count();
-}
-
-double median_of(std::vector<double> v) {
-    std::sort(v.begin(), v.end());
-    return v.empty() ? 0.0 : v[v.size() / 2];
 }
 
 /// One scan registered by its fiducials (§3.4.1), and what it brings to the part.
