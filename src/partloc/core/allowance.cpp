@@ -12,7 +12,9 @@
 #include <stdexcept>
 #include <unordered_map>
 
+#include "partloc/core/median.hpp"
 #include "partloc/core/surface.hpp"
+#include "partloc/core/union_find.hpp"
 
 namespace partloc {
 
@@ -20,14 +22,6 @@ namespace {
 
 constexpr double kPi = 3.14159265358979323846;
 const double kNaN = std::numeric_limits<double>::quiet_NaN();
-
-int find_root(std::vector<int>& parent, int i) {
-    while (parent[i] != i) {
-        parent[i] = parent[parent[i]];
-        i = parent[i];
-    }
-    return i;
-}
 
 /// Each triangle's face: triangles joined across shared edges (vertices merged by position: an STL repeats
 /// them per triangle) whose normals differ by less than `angle_deg`.
@@ -157,9 +151,14 @@ StockPlane plane_near(const ScannedStock& stock, const Eigen::Vector3d& p, const
         first = last;
     }
     if (best_last == 0) return plane;
+    // The sheet's points on the line (within r_in of it): their offsets from it, their heights along it and
+    // their flat regions, for the test here and the region below.
     const double r_in = std::max(2.5 * s.spacing, 0.25 * R);
+    std::vector<double> inner;
+    std::unordered_map<int, int> inner_votes;
     {
         const double need_in = std::max(3.0, s.min_support * kPi * (r_in / s.spacing) * (r_in / s.spacing));
+        const bool regions = stock.region.size() == stock.points.size();
         std::vector<Eigen::Vector3d> lateral;
         Eigen::Vector3d mean = Eigen::Vector3d::Zero();
         for (std::size_t i = best_first; i < best_last; ++i) {
@@ -168,6 +167,8 @@ StockPlane plane_near(const ScannedStock& stock, const Eigen::Vector3d& p, const
             if (l.squaredNorm() >= r_in * r_in) continue;
             lateral.push_back(l);
             mean += l;
+            inner.push_back(cand[i].first);
+            if (regions && stock.region[cand[i].second] >= 0) ++inner_votes[stock.region[cand[i].second]];
         }
         std::size_t beyond = 0;
         for (const auto& l : lateral)
@@ -185,17 +186,9 @@ StockPlane plane_near(const ScannedStock& stock, const Eigen::Vector3d& p, const
     // seed 106 read +0.28 and -0.30 mm on faces whose stock is the face itself
     // (tests/test_machining_sim.cpp). The points within a few spacings of the line lie on one level, and
     // that level's region plane is exact there.
-    if (stock.region.size() == stock.points.size()) {
-        std::vector<double> inner;
-        std::unordered_map<int, int> votes;
-        for (std::size_t i = best_first; i < best_last; ++i) {
-            const Eigen::Vector3d d = stock.points[cand[i].second] - p;
-            if ((d - cand[i].first * n).squaredNorm() >= r_in * r_in) continue;
-            inner.push_back(cand[i].first);
-            if (stock.region[cand[i].second] >= 0) ++votes[stock.region[cand[i].second]];
-        }
+    {
         int best = -1, most = 0;
-        for (const auto& [r, count] : votes)
+        for (const auto& [r, count] : inner_votes)
             if (count > most) {
                 best = r;
                 most = count;
@@ -203,8 +196,7 @@ StockPlane plane_near(const ScannedStock& stock, const Eigen::Vector3d& p, const
         if (inner.size() >= 8 && best >= 0 && 3 * most >= 2 * static_cast<int>(inner.size())) {
             const StockPlaneFit& r = stock.regions[best];
             const StockPlane region{true, r.centre, r.normal, static_cast<int>(r.points)};
-            const std::size_t mid = inner.size() / 2;
-            std::nth_element(inner.begin(), inner.begin() + static_cast<std::ptrdiff_t>(mid), inner.end());
+            const double t_inner = median_of(inner);
             const double a_region = allowance_on_plane(region, p, n);
             const Eigen::Vector3d x = p + a_region * n;
             // The inner points' median height: its standard error from the scanner's noise (1.25 sigma /
@@ -212,7 +204,7 @@ StockPlane plane_near(const ScannedStock& stock, const Eigen::Vector3d& p, const
             const double se = std::hypot(1.2533 * s.noise / std::sqrt(static_cast<double>(inner.size())),
                                          r.height_se(x, floor));
             if (r.points > fit.points && r.normal.dot(n) >= cos_max &&
-                r.sigma <= 1.25 * std::max(floor, s.noise) && std::abs(a_region - inner[mid]) <= 4.0 * se)
+                r.sigma <= 1.25 * std::max(floor, s.noise) && std::abs(a_region - t_inner) <= 4.0 * se)
                 return region;
         }
     }
