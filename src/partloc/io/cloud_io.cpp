@@ -20,16 +20,24 @@ namespace {
 
 enum class Format { Ply, Pcd, Columns, Vtk, Stl, Obj, Step };
 
-Format format_of(const fs::path& path, const std::string& name) {
+/// The file name's extension in lower case (".ply").
+std::string extension_of(const fs::path& path) {
     std::string ext = path.extension().string();
     std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+    return ext;
+}
+
+bool is_step_extension(const std::string& ext) { return ext == ".step" || ext == ".stp"; }
+
+Format format_of(const fs::path& path, const std::string& name) {
+    const std::string ext = extension_of(path);
     if (ext == ".ply") return Format::Ply;
     if (ext == ".pcd") return Format::Pcd;
     if (ext == ".xyz" || ext == ".txt" || ext == ".csv" || ext == ".asc") return Format::Columns;
     if (ext == ".vtk") return Format::Vtk;
     if (ext == ".stl") return Format::Stl;
     if (ext == ".obj") return Format::Obj;
-    if (ext == ".step" || ext == ".stp") return Format::Step;
+    if (is_step_extension(ext)) return Format::Step;
     throw InputError(
         name, (ext.empty() ? std::string("file name has no extension") : "unknown file type '" + ext + "'") +
                   " (known: .ply .pcd .xyz .txt .csv .asc .vtk .stl .obj .step .stp)");
@@ -175,11 +183,7 @@ std::shared_ptr<open3d::geometry::TriangleMesh> read_mesh(const fs::path& path,
     return to_mesh(read_raw(path, display_name), display_name, units_scale);
 }
 
-bool is_step_file(const fs::path& path) {
-    std::string ext = path.extension().string();
-    std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
-    return ext == ".step" || ext == ".stp";
-}
+bool is_step_file(const fs::path& path) { return is_step_extension(extension_of(path)); }
 
 ModelSource read_model(const fs::path& path, const std::string& display_name, double units_scale,
                        std::vector<std::string>* warnings, const ModelOptions& options) {
