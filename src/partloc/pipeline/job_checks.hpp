@@ -1,7 +1,8 @@
 #pragma once
-// Checks of a job against its own data that need no registration (issue 27): what `partloc check` prints
-// and what `run` adds to its warnings. The checks that need the scans registered (axes left out, reference
-// surfaces that are the finished faces, a fiducial probed wrong) are the pipeline's.
+// Checks of a job against its own data (issue 27): the scans' size against the fiducials' in the job's units
+// (before registering: what `partloc check` prints, and `run` warns of), and the located reference surfaces
+// against the scans (after the part's fit: reference faces the scans show elsewhere). The checks still to
+// come need the registrations: scans at other axis positions without `axes`, a fiducial probed wrong.
 #include <Eigen/Geometry>
 #include <string>
 #include <vector>

@@ -427,13 +427,13 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         };
     estimate_uncertainty(job, ui, w);
 
-    // Build the outputs: the final part moved by the located pose, merged.ply's points and the stock.
     // Reference surfaces that the scans show elsewhere, parallel to them (pipeline/job_checks.hpp).
     if (part.all_registered && part.all_registered->HasNormals())
         for (const std::string& s :
              reference_offset_warnings(part.all_registered->points_, part.all_registered->normals_, reference,
                                        T_located_nominal, noise, prep.spacing, job.units))
             checks.push_back("workpiece.reference_surfaces: " + s);
+    // Build the outputs: the final part moved by the located pose, merged.ply's points and the stock.
     tell("building the outputs");
     result.view = view_points(part, reference, &T_located_nominal, view_reach, config.report.view_points);
     if (job.workpiece.final_part && job.workpiece.final_part->mesh) {
