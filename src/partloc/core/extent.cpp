@@ -3,9 +3,23 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 
 namespace partloc {
+
+std::string rank_problem(const Extent& e, int min_rank) {
+    if (e.rank >= min_rank) return "";
+    if (e.points == 0) return "it has no points";
+    if (e.rank == 0)
+        return e.points == 1 ? "it has only one point"
+                             : "all " + std::to_string(e.points) + " points are one and the same point";
+    if (e.rank == 1) return "its points lie on one line";
+    char thickness[96];
+    std::snprintf(thickness, sizeof thickness, " (thickness %.3g against a size of %.3g)", e.thickness,
+                  e.size);
+    return std::string("its points lie in one plane") + thickness;
+}
 
 Extent extent_of(const std::vector<Eigen::Vector3d>& points, double relative_tolerance) {
     Extent e;

@@ -26,6 +26,11 @@ struct Extent {
 /// where the sums could lose the spread of points far from the origin.
 Extent extent_of(const std::vector<Eigen::Vector3d>& points, double relative_tolerance = 1e-6);
 
+/// What keeps points of rank < `min_rank` from being what an algorithm needs, as a phrase that can follow a
+/// file's name ("all 500 points are one and the same point", "its points lie on one line", "its points lie
+/// in one plane (thickness 1e-09 against a size of 14.4)"); empty when the rank is enough.
+std::string rank_problem(const Extent& e, int min_rank = 3);
+
 /// Removes the points (and their normals, when there is one per point) that lie farther from the points'
 /// median than `factor` times the diagonal of the box that holds the middle 98 % of them on each axis (a
 /// single point at 1e9 in a scan of 200 mm, say). Returns how many were removed; a cloud without such

@@ -633,15 +633,8 @@ void check_job_geometry(const Job& job, const std::string& job_name) {
             throw InputError(file, "coordinates reach " + shortest(e.max_abs) + unit + ", beyond the " +
                                        shortest(max_length) + unit +
                                        " (10 km) a machine can hold: a wrong unit or a corrupt file?");
-        if (e.rank >= min_rank) return e;
-        if (e.rank == 0)
-            throw InputError(file, "all " + std::to_string(e.points) +
-                                       " points are one and the same point; " + what + " needs " + needs);
-        if (e.rank == 1) throw InputError(file, "its points lie on one line; " + what + " needs " + needs);
-        if (e.rank == 2)
-            throw InputError(file, "its points lie in one plane (thickness " + shortest(e.thickness) +
-                                       " against a size of " + shortest(e.size) + unit + "); " + what +
-                                       " needs " + needs);
+        const std::string problem = rank_problem(e, min_rank);
+        if (!problem.empty()) throw InputError(file, problem + "; " + what + " needs " + needs);
         return e;
     };
     double largest_scan = 0, densest_spacing = std::numeric_limits<double>::infinity();

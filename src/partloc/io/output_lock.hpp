@@ -15,8 +15,9 @@ struct FolderBusy : std::runtime_error {
 
 /// An exclusive lock on an output folder, held while the object lives: flock(2) on DIR/.partloc.lock, which
 /// the system releases when the process ends however it ends, so a killed run never leaves the folder
-/// locked. Once the lock is held, the temporaries that killed runs left (io/atomic_file.hpp's .tmp-PID-N-*
-/// names, in DIR and its sub-folders) are removed: no run can be writing them.
+/// locked; the file is removed when the lock is given up. Once the lock is held, the temporaries that killed
+/// runs left (io/atomic_file.hpp's .tmp-PID-N-* names, in DIR and its sub-folders) are removed: no run can be
+/// writing them.
 class OutputFolderLock {
   public:
     /// Creates `dir` when missing and takes the lock. Throws FolderBusy when another process holds it, and
@@ -30,6 +31,7 @@ class OutputFolderLock {
     std::size_t removed_temporaries() const { return removed_; }
 
   private:
+    std::filesystem::path lock_;
     int fd_ = -1;
     std::size_t removed_ = 0;
 };
