@@ -18,7 +18,9 @@
 #include "partloc/core/extent.hpp"
 #include "partloc/core/ppf.hpp"
 #include "partloc/io/cloud_io.hpp"
+#include "partloc/io/job_io.hpp"
 #include "partloc/io/output_lock.hpp"
+#include "partloc/pipeline/run.hpp"
 #include "test_util.hpp"
 
 namespace fs = std::filesystem;
@@ -427,6 +429,21 @@ TEST_F(Hostile, SecondRunIntoAFolderInUseIsRefused) {
     EXPECT_FALSE(fs::exists(out / "result.json"));
 }
 
+TEST_F(Hostile, TheLockLeavesNothingInTheFolder) {
+    const fs::path out = dir() / "out_lockfile";
+    expect_runs(job(), out);
+    EXPECT_TRUE(fs::exists(out / "result.json"));
+    EXPECT_FALSE(fs::exists(out / ".partloc.lock"));
+    {
+        io::OutputFolderLock first(out);
+        EXPECT_TRUE(fs::exists(out / ".partloc.lock"));
+        EXPECT_THROW(io::OutputFolderLock second(out), io::FolderBusy);
+    }
+    EXPECT_FALSE(fs::exists(out / ".partloc.lock"));
+    io::OutputFolderLock again(out);  // given up, it can be taken again
+    EXPECT_TRUE(fs::exists(out / ".partloc.lock"));
+}
+
 TEST_F(Hostile, KilledRunsTemporariesAreRemovedByTheNextRun) {
     const fs::path out = dir() / "out_tmp";
     spit(out / ".tmp-99999-0-merged.ply", "half a file");
@@ -450,6 +467,50 @@ TEST_F(Hostile, AFailedRerunLeavesNoOlderResultBesideNewerFiles) {
     EXPECT_EQ(r.code, 1) << r.err;
     EXPECT_NE(r.err.find("cannot write the output"), std::string::npos) << r.err;
     EXPECT_FALSE(fs::exists(out / "result.json"));
+}
+
+// A program that calls the library (load_job, then run_job) without io::check_job_geometry gets a degenerate
+// scan rejected with its reason, and a degenerate fiducial refused as std::invalid_argument: never an error
+// from inside Open3D or Qhull.
+TEST_F(Hostile, RunJobAloneRejectsDegenerateScansWithAReason) {
+    open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
+    const Job loaded = io::load_job(write_job(job()));
+    std::vector<Eigen::Vector3d> planar, line, same;
+    for (int i = 0; i < 60; ++i)
+        for (int j = 0; j < 60; ++j) planar.emplace_back(i, j, 0.0);
+    for (int i = 0; i < 3000; ++i) line.emplace_back(0.01 * i, 0.02 * i, -0.01 * i);
+    for (int i = 0; i < 3000; ++i) same.emplace_back(1.5, 2.5, 3.5);
+    const std::vector<std::pair<std::vector<Eigen::Vector3d>, std::string>> cases = {
+        {planar, "lie in one plane"},
+        {line, "lie on one line"},
+        {same, "one and the same point"},
+        {{}, "too few"},
+        {{{1, 2, 3}, {4, 5, 6}}, "too few"}};
+    for (const auto& [points, phrase] : cases) {
+        Job j = loaded;
+        Scan degenerate = j.scans[0];
+        degenerate.file = "degenerate.ply";
+        degenerate.points = std::make_shared<open3d::geometry::PointCloud>(points);
+        j.scans.push_back(degenerate);
+        RunSettings rs;
+        rs.build_stock = false;
+        JobResult r;
+        ASSERT_NO_THROW(r = run_job(j, rs)) << phrase;
+        ASSERT_EQ(r.scans.size(), 2u);
+        EXPECT_FALSE(r.scans[1].valid);
+        EXPECT_NE(r.scans[1].reason.find(phrase), std::string::npos) << r.scans[1].reason;
+    }
+    Job flat = loaded;
+    auto mesh = std::make_shared<open3d::geometry::TriangleMesh>();
+    mesh->vertices_ = {{0, 0, 0}, {30, 0, 0}, {0, 20, 0}, {30, 20, 0}};
+    mesh->triangles_ = {{0, 1, 2}, {1, 3, 2}};
+    flat.fiducials[0].model.mesh = mesh;
+    try {
+        run_job(flat, RunSettings{});
+        ADD_FAILURE() << "a flat fiducial ran";
+    } catch (const std::invalid_argument& e) {
+        EXPECT_NE(std::string(e.what()).find("lie in one plane"), std::string::npos) << e.what();
+    }
 }
 
 // --- the library's numeric guards ---

@@ -138,3 +138,52 @@ TEST(JobChecks, FinishedFacesGivenAsTheReferenceAreNamed) {
             EXPECT_NEAR(std::stod(m[1].str()), 1.0, 0.05) << w;
         }
 }
+
+// `axes:` left out of the rotated scans (issue 27's second mistake): seed 106's scans at A = 45 and 90
+// degrees told as if at 0. Each is named with the axis and the value it was taken at, left out of the part,
+// and the part located from the scans at 0 as right as with the axes given; with the axes given, none is
+// named.
+TEST(JobChecks, ScansAtOtherAxisPositionsWithoutAxesAreNamed) {
+    open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
+    const sim::SimulatedJob s = sim::simulate_random_cell(106);
+    RunSettings settings;
+    settings.threads = 2;
+    settings.build_stock = false;
+    const auto turned = [](const JobResult& r) {
+        int n = 0;
+        for (const std::string& w : r.warnings) n += w.find("about axis A") != std::string::npos;
+        return n;
+    };
+    const JobResult right = run_job(s.job, settings);
+    ASSERT_TRUE(right.workpiece.valid) << right.workpiece.reason;
+    EXPECT_EQ(turned(right), 0);
+    Job wrong = s.job;
+    std::vector<double> taken_at;
+    for (Scan& scan : wrong.scans) {
+        taken_at.push_back(scan.axes.count("A") ? scan.axes.at("A") : 0.0);
+        scan.axes.clear();
+    }
+    ASSERT_GT(std::count_if(taken_at.begin(), taken_at.end(), [](double a) { return a != 0.0; }), 1);
+    const JobResult r = run_job(wrong, settings);
+    ASSERT_TRUE(r.workpiece.valid) << r.workpiece.reason;
+    EXPECT_LT(pose_error(r.workpiece.T_machine_workpiece, s.truth.T_machine_workpiece).translation, 0.05);
+    int named = 0;
+    for (std::size_t i = 0; i < r.scans.size(); ++i) {
+        const ScanResult& sc = r.scans[i];
+        std::smatch m;
+        const bool told = std::regex_search(sc.reason, m, std::regex("axes: \\{A: (-?[0-9.]+)\\}"));
+        if (taken_at[i] == 0.0) {
+            EXPECT_FALSE(told) << sc.file << ": " << sc.reason;
+            continue;
+        }
+        // A registered scan at another position is named; one rejected before the part was for its own
+        // reason.
+        if (!right.scans[i].valid) continue;
+        ASSERT_TRUE(told) << sc.file << " (A = " << taken_at[i] << "): " << sc.reason;
+        EXPECT_FALSE(sc.valid);
+        EXPECT_NEAR(std::stod(m[1].str()), taken_at[i], 0.2) << sc.reason;
+        ++named;
+    }
+    EXPECT_GT(named, 1);
+    EXPECT_EQ(turned(r), named);
+}

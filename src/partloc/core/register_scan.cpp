@@ -314,31 +314,51 @@ ScanRegistration register_scan(const PreparedScan& scan, const std::vector<Place
     const double noise = scan.scale.noise;
     if (std::string why = rival_reason(*top, search.hyps, fiducials, noise, localize, settings); !why.empty())
         return done(why);
-    for (std::size_t g : top->contradicted)
+    for (std::size_t g : top->contradicted) {
+        if (top->explained.size() >= 2) r.moved.push_back(g);
         r.warnings.push_back("fiducial " + fiducials[g].name +
                              " is not where its probed pose puts it, while " +
                              std::to_string(top->explained.size()) +
                              " others agree: it moved or was probed wrong; left out of this scan's fit");
+    }
     // Every fiducial the winning hypothesis explains fixes the scan together. Each one's own fit must agree
     // with the others' within what the noise explains; one that does not has moved or was probed wrong.
     std::vector<std::size_t> in_view = top->explained;
     ScanPoseFit joint = search.joint_fit(in_view, top->T_machine_scan);
     if (joint.valid && in_view.size() >= 2) {
         const auto bad = search.disagreements(in_view, joint.T_machine_scan);
-        if (!bad.empty() && in_view.size() >= 3 && bad.size() == 1) {
-            // The others agree: this one moved or was probed wrong. Fit without it, and say so.
-            const auto& b = bad.front();
-            std::vector<std::size_t> rest;
-            for (std::size_t k : in_view)
-                if (k != b.k) rest.push_back(k);
-            const ScanPoseFit without = search.joint_fit(rest, top->T_machine_scan);
-            if (without.valid) {
-                r.warnings.push_back("fiducial " + fiducials[b.k].name + " disagrees with the others" +
-                                     format(" by %.3g at the fiducial and %.3g deg", b.shift, b.turn_deg) +
-                                     ": it moved or was probed wrong; left out of this scan's fit");
-                in_view = rest;
-                joint = without;
+        if (!bad.empty() && in_view.size() >= 3) {
+            // Which one moved: the fiducial without which the others agree, while it disagrees with them.
+            // Not the one whose own fit moves most from the joint fit: that fit is pulled towards the moved
+            // one, and a fiducial the scan holds weakly moves most (issue 27: A's probed x 0.5 mm off, and
+            // the warning named C).
+            struct Culprit {
+                Search::Disagreement d;
+                std::vector<std::size_t> rest;
+                ScanPoseFit fit;
+            };
+            std::vector<Culprit> culprits;
+            for (std::size_t k : in_view) {
+                std::vector<std::size_t> rest;
+                for (std::size_t j : in_view)
+                    if (j != k) rest.push_back(j);
+                ScanPoseFit without = search.joint_fit(rest, top->T_machine_scan);
+                if (!without.valid || !search.disagreements(rest, without.T_machine_scan).empty()) continue;
+                const auto alone = search.disagreements({k}, without.T_machine_scan);
+                if (alone.empty()) continue;
+                culprits.push_back({alone.front(), std::move(rest), std::move(without)});
             }
+            if (culprits.size() != 1)
+                return done("fiducials " + names_of(fiducials, in_view) + " disagree" +
+                            format(" by up to %.3g", bad.front().shift) +
+                            " here, and no one of them alone: one or more moved or were probed wrong");
+            const Culprit& c = culprits.front();
+            r.warnings.push_back("fiducial " + fiducials[c.d.k].name + " disagrees with the others" +
+                                 format(" by %.3g at the fiducial and %.3g deg", c.d.shift, c.d.turn_deg) +
+                                 ": it moved or was probed wrong; left out of this scan's fit");
+            r.moved.push_back(c.d.k);
+            in_view = c.rest;
+            joint = c.fit;
         } else if (!bad.empty()) {
             return done("fiducials " + names_of(fiducials, in_view) + " disagree" +
                         format(" by up to %.3g", bad.front().shift) +

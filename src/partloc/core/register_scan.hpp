@@ -90,7 +90,10 @@ struct ScanRegistration {
     Matrix6d information = Matrix6d::Zero();
     std::vector<Matrix6d> JtJ_per_fiducial;
     std::vector<std::string> warnings;  ///< a fiducial left out (moved or probed wrong), even when not valid
-    std::vector<FiducialFit> fits;      ///< each fiducial's best fit, or how it was judged, in their order
+    /// The fiducials this scan finds moved or probed wrong: each one not where its probed pose puts it while
+    /// at least two others agree without it.
+    std::vector<std::size_t> moved;
+    std::vector<FiducialFit> fits;  ///< each fiducial's best fit, or how it was judged, in their order
     std::vector<Hypothesis> hypotheses;
 };
 

@@ -150,4 +150,108 @@ std::vector<std::string> reference_offset_warnings(const std::vector<Eigen::Vect
     return out;
 }
 
+std::string TurnedScan::sentence() const {
+    return format(
+        "its part lies turned %.1f degrees about axis %s from the part the other scans locate: at %s = %.1f "
+        "it lies on it (%zu of its sampled points on the reference surfaces, against %zu at %s = %.1f as the "
+        "job gives); were its axis values left out of the job or mistyped (axes: {%s: %.1f})? Left out of "
+        "the part",
+        agrees - stated, axis.c_str(), axis.c_str(), agrees, points_agree, points_stated, axis.c_str(),
+        stated, axis.c_str(), agrees);
+}
+
+std::vector<TurnedScan> turned_scans(const Job& job,
+                                     const std::vector<const Eigen::Isometry3d*>& T_machine_scan,
+                                     const Surface& reference, const Eigen::Isometry3d& T_located_nominal,
+                                     double noise, const AxisCheckSettings& settings) {
+    std::vector<TurnedScan> out;
+    const auto& chain = job.workpiece.moves_with;
+    std::vector<const Axis*> rotary;
+    for (const std::string& name : chain)
+        if (const Axis* a = job.machine.find(name); a && a->type == AxisType::Rotary) rotary.push_back(a);
+    if (rotary.empty() || reference.points.empty()) return out;
+    const Eigen::Isometry3d T_nominal_located = T_located_nominal.inverse();
+    const double band = settings.band_noises * noise;
+    // How far the reference surfaces reach from each axis: a turn of t radians moves them at most r t.
+    const auto reach_from = [&](const Axis& a) {
+        double r = 0.0;
+        for (const auto& p : reference.points) {
+            const Eigen::Vector3d m = T_located_nominal * p - a.point;
+            r = std::max(r, (m - m.dot(a.direction) * a.direction).norm());
+        }
+        return r;
+    };
+    for (std::size_t i = 0; i < job.scans.size() && i < T_machine_scan.size(); ++i) {
+        if (!T_machine_scan[i] || !job.scans[i].points) continue;
+        const auto& all = job.scans[i].points->points_;
+        const std::size_t stride = std::max<std::size_t>(1, all.size() / settings.points);
+        std::vector<Eigen::Vector3d> pts;  // machine frame, at the scan's axis values
+        for (std::size_t k = 0; k < all.size(); k += stride)
+            if (all[k].allFinite()) pts.push_back(*T_machine_scan[i] * all[k]);
+        const AxisValues& stated = job.scans[i].axes;
+        // The sampled points on the reference surfaces (within `tolerance` of them along their normal) when
+        // the scan was taken at `q`.
+        const auto on_reference = [&](const AxisValues& q, double tolerance) {
+            const Eigen::Isometry3d to_nominal = T_nominal_located * job.machine.motion(chain, q).inverse();
+            const double reach = tolerance + 1.5 * reference.spacing;
+            std::size_t n = 0;
+            for (const auto& p : pts) {
+                const Eigen::Vector3d q0 = to_nominal * p;
+                double d2 = 0.0;
+                const int k = reference.nearest(q0, &d2, reach);
+                n += k >= 0 && std::abs(reference.normals[k].dot(q0 - reference.points[k])) < tolerance;
+            }
+            return n;
+        };
+        const std::size_t at_stated = on_reference(stated, band);
+        TurnedScan best;
+        for (const Axis* a : rotary) {
+            const double r = reach_from(*a);
+            const auto it = stated.find(a->name);
+            const double given = it == stated.end() ? 0.0 : it->second;
+            AxisValues q = stated;
+            // Every `step` degrees over the turn, then finer about the best, each with a tolerance of the
+            // motion half a step makes at the surfaces' reach (at least the band).
+            double centre = given, span = 180.0;
+            for (const double step : {2.0, 0.25, 0.05}) {
+                const double tolerance = std::max(band, r * 0.5 * step * M_PI / 180.0);
+                std::vector<std::pair<double, std::size_t>> counts;
+                std::size_t most = 0;
+                for (double d = -span; d < span + 1e-9; d += step) {
+                    q[a->name] = centre + d;
+                    counts.emplace_back(centre + d, on_reference(q, tolerance));
+                    most = std::max(most, counts.back().second);
+                }
+                // The middle of the peak, not its first value: near the axis the count is flat over a turn of
+                // about the tolerance over the radius. The run of values within 10 % of the most, about it.
+                std::size_t lo = 0;
+                while (counts[lo].second != most) ++lo;
+                std::size_t hi = lo;
+                const double floor = 0.9 * static_cast<double>(most);
+                while (lo > 0 && static_cast<double>(counts[lo - 1].second) >= floor) --lo;
+                while (hi + 1 < counts.size() && static_cast<double>(counts[hi + 1].second) >= floor) ++hi;
+                centre = 0.5 * (counts[lo].first + counts[hi].first);
+                span = 2.0 * step;
+            }
+            q[a->name] = centre;
+            const std::size_t at_best = on_reference(q, band);
+            double turn = std::remainder(centre - given, 360.0);
+            if (std::abs(turn) < settings.min_turn_deg || at_best <= best.points_agree) continue;
+            best.scan = i;
+            best.axis = a->name;
+            best.stated = given;
+            best.agrees = given + turn;
+            best.points_agree = at_best;
+            best.points_stated = at_stated;
+        }
+        if (best.axis.empty()) continue;
+        if (best.points_agree < settings.min_points ||
+            static_cast<double>(best.points_agree) < settings.gain * static_cast<double>(best.points_stated) +
+                                                         static_cast<double>(settings.min_gain))
+            continue;
+        out.push_back(best);
+    }
+    return out;
+}
+
 }  // namespace partloc

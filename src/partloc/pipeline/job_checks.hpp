@@ -1,8 +1,8 @@
 #pragma once
 // Checks of a job against its own data (issue 27): the scans' size against the fiducials' in the job's units
 // (before registering: what `partloc check` prints, and `run` warns of), and the located reference surfaces
-// against the scans (after the part's fit: reference faces the scans show elsewhere). The checks still to
-// come need the registrations: scans at other axis positions without `axes`, a fiducial probed wrong.
+// against the scans (after the part's fit: reference faces the scans show elsewhere), and each registered
+// scan's part against the located part (after the fit: scans at other axis positions than the job says).
 #include <Eigen/Geometry>
 #include <string>
 #include <vector>
@@ -56,5 +56,37 @@ std::vector<std::string> reference_offset_warnings(const std::vector<Eigen::Vect
                                                    const Eigen::Isometry3d& T_located_nominal, double noise,
                                                    double spacing, const std::string& units,
                                                    const ReferenceCheckSettings& settings = {});
+
+struct AxisCheckSettings {
+    std::size_t points = 4000;  ///< of each scan's points, evenly spread, are looked up
+    double band_noises = 3.0;   ///< a point lies on the reference surfaces within this many noises
+    double min_turn_deg = 1.0;  ///< a turn of less is not told (the fit's own error)
+    /// A turn is told when its points on the reference surfaces number at least `gain` times those at the
+    /// axis values the job gives, plus `min_gain`, and at least `min_points`.
+    double gain = 2.0;
+    std::size_t min_gain = 30, min_points = 50;
+};
+
+/// A scan whose part lies turned about a rotary axis the workpiece moves with: its axis value is not the
+/// one the job gives (left out, or mistyped).
+struct TurnedScan {
+    std::size_t scan = 0;
+    std::string axis;
+    double stated = 0.0;  ///< the axis value the job gives (degrees; 0 where it gives none)
+    double agrees = 0.0;  ///< the value at which the scan's part lies on the located part
+    std::size_t points_stated = 0, points_agree = 0;  ///< its sampled points on the reference surfaces
+    std::string sentence() const;
+};
+
+/// Each registered scan (`T_machine_scan`, null where it is not registered) against the located part: its
+/// points carried to the reference axis position by the job's axis values, and by other values of each
+/// rotary axis the workpiece moves with (every 2 degrees, then finer about the best), counted on the
+/// reference surfaces placed at `T_located_nominal` (machine0). A scan that lies on them far better at
+/// another value is named, with the axis and the value (issue 27: `axes:` left out of the rotated scans put
+/// the part three times into merged.ply and the stock). Nothing for a workpiece on no rotary axis.
+std::vector<TurnedScan> turned_scans(const Job& job,
+                                     const std::vector<const Eigen::Isometry3d*>& T_machine_scan,
+                                     const Surface& reference, const Eigen::Isometry3d& T_located_nominal,
+                                     double noise, const AxisCheckSettings& settings = {});
 
 }  // namespace partloc

@@ -13,6 +13,7 @@
 #include <stdexcept>
 
 #include "partloc/core/cloud_stats.hpp"
+#include "partloc/core/extent.hpp"
 #include "partloc/core/format.hpp"
 #include "partloc/core/median.hpp"
 #include "partloc/core/register_scan.hpp"
@@ -31,22 +32,57 @@ double seconds_since(Clock::time_point t0) {
     return std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
-/// One scan registered by its fiducials (§3.4.1), and what it brings to the part.
+/// One scan registered by its fiducials (§3.4.1), less those `left_out` marks (none when empty), and what it
+/// brings to the part.
 void register_one(const Job& job, const JobPreparation& p, const Config& config, std::size_t i,
-                  ScanRegistration& reg, ScanEvidence& evidence) {
+                  ScanRegistration& reg, ScanEvidence& evidence, const std::vector<char>& left_out = {}) {
     const Scan& scan = job.scans[i];
     const Scale& scale = p.scales[i];
-    if (scan.points->points_.size() < config.scale.min_scan_points || scale.spacing <= 0) {
+    if (scan.points->points_.size() < config.scale.min_scan_points) {
         reg.reason = "too few valid points (" + std::to_string(scan.points->points_.size()) + ")";
+        return;
+    }
+    // Points without depth in every direction show no fiducial, and the normals' and the hull's libraries
+    // fail on them (io::check_job_geometry refuses them at load; this for a program that did not call it).
+    const std::string flat = rank_problem(extent_of(scan.points->points_));
+    if (!flat.empty()) {
+        reg.reason = flat + ": a scan needs points spread in three dimensions";
+        return;
+    }
+    if (scale.spacing <= 0) {
+        reg.reason = "its point spacing could not be measured";
         return;
     }
     const Eigen::Vector3d viewpoint = estimate_viewpoint(*scan.points, scale.spacing);
     const PreparedScan ps = prepare_scan(*scan.points, scale, p.sampling, viewpoint);
     std::vector<PlacedFiducial> placed;
-    for (std::size_t k = 0; k < job.fiducials.size(); ++k)
+    std::vector<std::size_t> job_index;  // of each placed fiducial
+    for (std::size_t k = 0; k < job.fiducials.size(); ++k) {
+        if (k < left_out.size() && left_out[k]) continue;
         placed.push_back(
             {job.fiducials[k].name, &p.models[k], fiducial_at(job.machine, job.fiducials[k], scan.axes)});
+        job_index.push_back(k);
+    }
+    if (placed.empty()) {
+        reg.reason = "every fiducial is left out (moved or probed wrong)";
+        return;
+    }
     reg = register_scan(ps, placed, config.candidates, config.registration);
+    if (placed.size() < job.fiducials.size()) {
+        // Back to the job's fiducials: indices, and a fit for each one left out that says so.
+        for (auto& k : reg.fiducials) k = job_index[k];
+        for (auto& k : reg.moved) k = job_index[k];
+        reg.source = job_index[reg.source];
+        std::vector<FiducialFit> fits(job.fiducials.size());
+        for (std::size_t k = 0; k < fits.size(); ++k) {
+            fits[k].fiducial = job.fiducials[k].name;
+            fits[k].reason = "left out: another scan found it moved or probed wrong";
+        }
+        for (std::size_t j = 0; j < reg.fits.size() && j < job_index.size(); ++j)
+            fits[job_index[j]] = reg.fits[j];
+        reg.fits = std::move(fits);
+        reg.hypotheses.clear();  // their indices are the placed fiducials'
+    }
     if (!reg.valid) return;
     // The scan's workpiece points, moved to the workpiece at the reference axis position (§3.4.2).
     const Eigen::Isometry3d T_machine0_scan =
@@ -213,8 +249,19 @@ UncertaintyInputs uncertainty_inputs(const Job& job, const std::vector<ScanRegis
 
 void check_job(const Job& job) {
     if (job.fiducials.empty()) throw std::invalid_argument("the job has no fiducials");
-    for (const auto& f : job.fiducials)
+    for (const auto& f : job.fiducials) {
         job.machine.motion(f.moves_with, f.probed_at);  // throws on an unknown axis
+        // A flat or linear model would reach Qhull (the visible surface's hull) and the pose search's tables
+        // degenerate; io::check_job_geometry says so naming the file, this for a program that did not call
+        // it.
+        if (!f.model.mesh && !f.model.points)
+            throw std::invalid_argument("fiducial " + f.name + " has no model");
+        const auto& v = f.model.mesh ? f.model.mesh->vertices_ : f.model.points->points_;
+        const std::string problem = rank_problem(extent_of(v));
+        if (!problem.empty())
+            throw std::invalid_argument("fiducial " + f.name + " (" + f.model.file + "): " + problem +
+                                        "; a fiducial needs a three-dimensional shape");
+    }
     job.machine.motion(job.workpiece.moves_with, {});
 }
 
@@ -274,6 +321,54 @@ void register_scans(const Job& job, const JobPreparation& prep, const RunSetting
         settings.progress(
             format("scan %zu of %zu (%s, %.1f s): ", finished, n, job.scans[i].file.c_str(), seconds[i]) +
             (regs[i].valid ? "placed by fiducials " + names : "not placed: " + regs[i].reason));
+    });
+}
+
+/// A fiducial that a registered scan found moved or probed wrong (the others in its view agree without it) is
+/// left out of every scan: the scans it placed, and those rejected because fiducials disagreed, are
+/// registered again without it (issue 27: with A probed 0.5 mm off, scans that saw A with one other fiducial
+/// were rejected or placed between the two). Leaving a fiducial out costs recall, never a wrong placement.
+void reregister_without_moved(const Job& job, const JobPreparation& prep, const RunSettings& settings,
+                              std::vector<ScanRegistration>& regs, std::vector<ScanEvidence>& evidence,
+                              std::vector<double>& seconds) {
+    const std::size_t n = regs.size();
+    std::vector<char> left_out(job.fiducials.size(), 0);
+    std::vector<std::string> found_by(job.fiducials.size());
+    for (std::size_t i = 0; i < n; ++i) {
+        if (!regs[i].valid) continue;
+        for (std::size_t k : regs[i].moved) {
+            if (!left_out[k]) found_by[k] = job.scans[i].file;
+            left_out[k] = 1;
+        }
+    }
+    if (std::find(left_out.begin(), left_out.end(), 1) == left_out.end()) return;
+    std::vector<std::size_t> again;
+    for (std::size_t i = 0; i < n; ++i) {
+        const ScanRegistration& r = regs[i];
+        bool named_it = false, used = false;
+        for (std::size_t k : r.moved) named_it |= left_out[k] != 0;
+        for (std::size_t k : r.fiducials) used |= left_out[k] != 0;
+        const bool disagreed = !r.valid && (r.reason.find("disagree") != std::string::npos ||
+                                            r.reason.find("contradicts") != std::string::npos);
+        if (!named_it && ((r.valid && used) || disagreed)) again.push_back(i);
+    }
+    std::string names;
+    for (std::size_t k = 0; k < left_out.size(); ++k)
+        if (left_out[k]) names += (names.empty() ? "" : ", ") + job.fiducials[k].name;
+    if (settings.progress && !again.empty())
+        settings.progress(
+            format("registering %zu scans again without fiducial %s", again.size(), names.c_str()));
+    tbb::parallel_for(std::size_t(0), again.size(), [&](std::size_t j) {
+        const std::size_t i = again[j];
+        const auto ts = Clock::now();
+        regs[i] = ScanRegistration{};
+        evidence[i] = ScanEvidence{};
+        register_one(job, prep, settings.config, i, regs[i], evidence[i], left_out);
+        seconds[i] += seconds_since(ts);
+        for (std::size_t k = 0; k < left_out.size(); ++k)
+            if (left_out[k])
+                regs[i].warnings.push_back("fiducial " + job.fiducials[k].name + " left out of this scan: " +
+                                           found_by[k] + " found it moved or probed wrong");
     });
 }
 
@@ -352,6 +447,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     std::vector<ScanEvidence> evidence(n);
     std::vector<double> seconds(n, 0.0);
     register_scans(job, prep, settings, regs, evidence, seconds);
+    reregister_without_moved(job, prep, settings, regs, evidence, seconds);
     tell("locating the part");
 
     // Locate the part (§3.4.2): choose the scans, merge them, fit the reference surfaces.
@@ -384,7 +480,27 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
     for (std::size_t i = 0; i < n; ++i)
         in.part_at_scan.push_back(job.machine.motion(job.workpiece.moves_with, job.scans[i].axes) *
                                   reference.center);
+    const PartSelection chosen = selection;
     PartFit part = fit_part(in, std::move(selection), config);
+    // Scans whose part lies turned about a rotary axis from the located part: their axis values are not the
+    // job's (pipeline/job_checks.hpp). Left out, and the part fitted again without them.
+    if (part.fit.valid) {
+        std::vector<const Eigen::Isometry3d*> placed(n, nullptr);
+        for (std::size_t i = 0; i < n; ++i)
+            if (part.selection.registered[i]) placed[i] = &regs[i].T_machine_scan;
+        const std::vector<TurnedScan> turned =
+            turned_scans(job, placed, reference, part.fit.T_located_nominal, part.settings.noise);
+        if (!turned.empty()) {
+            PartSelection again = chosen;
+            for (const TurnedScan& t : turned) {
+                again.registered[t.scan] = 0;
+                again.rejected[t.scan] = t.sentence();
+                checks.push_back(job.scans[t.scan].file + ": " + t.sentence());
+            }
+            tell("locating the part again without the turned scans");
+            part = fit_part(in, std::move(again), config);
+        }
+    }
     write_scans(&part.selection);
     if (!part.selection.none_left.empty()) return done(part.reason);
     w.rmse = part.fit.rmse;
