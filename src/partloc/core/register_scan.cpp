@@ -377,6 +377,33 @@ ScanRegistration register_scan(const PreparedScan& scan, const std::vector<Place
         r.JtJ_per_fiducial = joint.JtJ_per_model;
     }
     r.fits[top->source] = top->source_fit;
+    // The fits say of each fiducial what the scan's status says (issue 27: "registered by A,B,C" beside a
+    // row that called A rejected, its own search's best candidate, while the winner's pose explained it):
+    // accepted exactly when it fixes the scan.
+    const auto among = [](const std::vector<std::size_t>& v, std::size_t k) {
+        return std::find(v.begin(), v.end(), k) != v.end();
+    };
+    for (std::size_t k = 0; k < r.fits.size() && k < top->judged.size(); ++k) {
+        FiducialFit& f = r.fits[k];
+        if (among(in_view, k)) {
+            if (k != top->source && !f.valid) {
+                f = top->judged[k];
+                f.searched = false;  // accepted where the others put it
+            }
+            f.valid = true;
+            f.reason.clear();
+        } else if (among(r.moved, k)) {
+            if (f.valid || f.reason.empty()) f = top->judged[k];
+            f.valid = false;
+            f.searched = false;
+            f.reason =
+                "not where its probed pose puts it, while the others agree: it moved or was probed wrong; "
+                "left out of this scan's fit";
+        } else if (f.valid) {
+            f.valid = false;
+            f.reason = "not used: it does not fit where the scan's other fiducials put it";
+        }
+    }
     return done("");
 }
 
