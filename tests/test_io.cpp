@@ -908,6 +908,11 @@ TEST(Outputs, WarningsAreListedInResultJsonAndTheReportShowsThemInAmber) {
     EXPECT_EQ(j.at("warnings")[0], result.warnings[0]);
     const std::string html = render_report_html(job, result, {"job.yaml", 3000});
     EXPECT_NE(html.find("banner warn"), std::string::npos);
+    EXPECT_NE(html.find("<b>Workpiece located with warnings</b>"),
+              std::string::npos);  // the terminal's words
     EXPECT_EQ(html.find("banner ok"), std::string::npos);
+    // Euler angles are not named like the machine's rotary axes A, B, C (issue 27).
+    EXPECT_NE(html.find("<th>rot X (°)</th><th>rot Y (°)</th><th>rot Z (°)</th>"), std::string::npos);
+    EXPECT_EQ(html.find("<th>A (°)</th>"), std::string::npos);
     EXPECT_NE(html.find("fiducial C is left out"), std::string::npos);
 }

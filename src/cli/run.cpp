@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <cstdio>
+#include <cstdlib>
 #include <iostream>
 #include <optional>
 #include <sstream>
@@ -44,7 +45,21 @@ std::string triple(const Eigen::Vector3d& v, int decimals) {
     return "[" + fixed(v.x(), decimals) + ", " + fixed(v.y(), decimals) + ", " + fixed(v.z(), decimals) + "]";
 }
 
-void print_summary(std::ostream& out, const std::string& job_file, const Job& job, const JobResult& result) {
+/// The outcome's word, coloured on a terminal (green located, amber located with warnings, red not located;
+/// none when NO_COLOR is set): the same words as the report's banner.
+std::string outcome_word(const JobResult& result, bool colour) {
+    const char* word = !result.workpiece.valid   ? "NOT LOCATED"
+                       : result.warnings.empty() ? "located"
+                                                 : "located with warnings";
+    if (!colour) return word;
+    const char* code = !result.workpiece.valid   ? "\033[1;31m"
+                       : result.warnings.empty() ? "\033[1;32m"
+                                                 : "\033[1;33m";
+    return std::string(code) + word + "\033[0m";
+}
+
+void print_summary(std::ostream& out, const std::string& job_file, const Job& job, const JobResult& result,
+                   bool colour) {
     const std::string& u = job.units;
     const int d = u == "m" ? 6 : u == "in" ? 4 : 3;
     out << "partloc run " << job_file << ": " << job.scans.size() << " scans, " << job.fiducials.size()
@@ -62,12 +77,13 @@ void print_summary(std::ostream& out, const std::string& job_file, const Job& jo
     }
     const WorkpieceResult& w = result.workpiece;
     if (!result.workpiece.valid) {
-        out << "workpiece: NOT LOCATED: " << w.reason << "\n";
+        out << "workpiece: " << outcome_word(result, colour) << ": " << w.reason << "\n";
         return;
     }
     const Eigen::Isometry3d& nominal = job.workpiece.T_machine_workpiece;
-    out << "workpiece: located  origin " << triple(w.T_machine_workpiece.translation(), d) << " " << u
-        << "  euler_xyz_deg " << triple(euler_xyz_deg(w.T_machine_workpiece.linear()), 3) << "\n";
+    out << "workpiece: " << outcome_word(result, colour) << "  origin "
+        << triple(w.T_machine_workpiece.translation(), d) << " " << u << "  euler_xyz_deg "
+        << triple(euler_xyz_deg(w.T_machine_workpiece.linear()), 3) << "\n";
     const PoseError e = pose_error(w.T_machine_workpiece, nominal);
     out << "  deviation from nominal: origin "
         << triple(w.T_machine_workpiece.translation() - nominal.translation(), d) << " " << u << " ("
@@ -77,9 +93,8 @@ void print_summary(std::ostream& out, const std::string& job_file, const Job& jo
         out << "  uncertainty_95: origin +- " << triple(w.uncertainty.origin, d) << " " << u << ", euler +- "
             << triple(w.uncertainty.euler_deg, 3) << " deg\n";
     if (!result.warnings.empty()) {
-        out << "  located WITH " << result.warnings.size() << " WARNING"
-            << (result.warnings.size() > 1 ? "S" : "") << ": look at "
-            << (result.warnings.size() > 1 ? "them" : "it") << " before cutting\n";
+        out << "  " << result.warnings.size() << " warning" << (result.warnings.size() > 1 ? "s" : "")
+            << ": look at " << (result.warnings.size() > 1 ? "them" : "it") << " before cutting\n";
         for (const auto& warning : result.warnings) out << "  warning: " << warning << "\n";
     }
 }
@@ -160,7 +175,8 @@ int command_run(const std::string& job_file, const std::string& out_dir, int thr
     if (models)
         for (const auto& p : models->problems()) std::cerr << "partloc: model cache: " << p << std::endl;
     for (const auto& w : job.warnings) std::cerr << "partloc: warning: " << w << std::endl;
-    print_summary(std::cout, job_file, job, result);
+    print_summary(std::cout, job_file, job, result,
+                  ::isatty(STDOUT_FILENO) == 1 && std::getenv("NO_COLOR") == nullptr);
     std::cout << "wrote";
     for (const auto& p : written) std::cout << " " << p.string();
     std::cout << std::endl;

@@ -52,13 +52,13 @@ struct Formatter {
 std::string axis_values(const AxisValues& q) {
     std::string s;
     for (const auto& [name, value] : q)
-        s += (s.empty() ? "" : ", ") + escape_html(name) + " = " + fixed(value, 3);
-    return s.empty() ? "all 0" : s;
+        s += (s.empty() ? "" : ", ") + std::string("axis ") + escape_html(name) + " = " + fixed(value, 3);
+    return s.empty() ? "axes at 0" : s;
 }
 
 std::string chain(const std::vector<std::string>& axes) {
     std::string s;
-    for (const auto& a : axes) s += (s.empty() ? "" : " → ") + escape_html(a);
+    for (const auto& a : axes) s += (s.empty() ? "" : " → ") + std::string("axis ") + escape_html(a);
     return s.empty() ? "fixed" : s;
 }
 
@@ -227,7 +227,7 @@ static void pose_section(std::ostream& h, const Job& job, const JobResult& resul
     std::size_t registered = 0;
     for (const auto& s : result.scans) registered += s.valid ? 1 : 0;
     if (result.workpiece.valid && !result.warnings.empty()) {
-        h << "<div class='banner warn'><b>Workpiece located, with warnings</b> from " << registered << " of "
+        h << "<div class='banner warn'><b>Workpiece located with warnings</b> from " << registered << " of "
           << result.scans.size() << " scans: look at them before cutting.<ul>";
         for (const auto& warning : result.warnings) h << "<li>" << escape_html(warning) << "</li>";
         h << "</ul></div>\n";
@@ -241,7 +241,7 @@ static void pose_section(std::ostream& h, const Job& job, const JobResult& resul
     // The pose first: it is what the machinist came for.
     h << "<h2>Workpiece pose (machine frame, all axes at 0)</h2>\n";
     h << "<table><tr><th></th><th>X (" << u << ")</th><th>Y (" << u << ")</th><th>Z (" << u
-      << ")</th><th>A (°)</th><th>B (°)</th><th>C (°)</th></tr>\n";
+      << ")</th><th>rot X (°)</th><th>rot Y (°)</th><th>rot Z (°)</th></tr>\n";
     const Eigen::Isometry3d& nominal = job.workpiece.T_machine_workpiece;
     h << "<tr><th>nominal (datum)</th>" << pose_cells(nominal, f) << "</tr>\n";
     if (w.valid) {
@@ -269,9 +269,9 @@ static void pose_section(std::ostream& h, const Job& job, const JobResult& resul
         h << "<tr><th>located</th><td colspan=6 class=dim>not located</td></tr>\n";
     }
     h << "</table>\n";
-    h << "<p class=dim>A, B, C: euler_xyz_deg, R = Rz(C)·Ry(B)·Rx(A), rotations about the machine X, then Y, "
-         "then "
-         "Z axes.</p>\n";
+    h << "<p class=dim>rot X, rot Y, rot Z: euler_xyz_deg, R = Rz(rot Z)·Ry(rot Y)·Rx(rot X), rotations "
+         "about the machine X, then Y, then Z axes (not the machine's rotary axes, which the scans table "
+         "names as \"axis A\"...).</p>\n";
     if (w.valid) {
         const PoseError e = pose_error(w.T_machine_workpiece, nominal);
         h << "<table><tr><th>shift from nominal</th><td class=num>" << f.length(e.translation) << " " << u
@@ -446,7 +446,7 @@ static void machining_section(std::ostream& h, const JobResult& result, const Fo
       << " " << u << " where the part was located); moved " << f.length(m.translation) << " " << u << " and "
       << f.angle(m.rotation_deg) << " ° from the located frame.</p>\n";
     h << "<table><tr><th>placed frame</th><th>X (" << u << ")</th><th>Y (" << u << ")</th><th>Z (" << u
-      << ")</th><th>A (°)</th><th>B (°)</th><th>C (°)</th></tr>\n<tr><th>T_machine_part</th>"
+      << ")</th><th>rot X (°)</th><th>rot Y (°)</th><th>rot Z (°)</th></tr>\n<tr><th>T_machine_part</th>"
       << pose_cells(m.T_machine_part, f) << "</tr></table>\n";
     h << "<table><tr><th>face</th><th>area (" << u << "²)</th><th>min (" << u << ")</th><th>mean (" << u
       << ")</th><th>max (" << u << ")</th><th>unscanned</th></tr>\n";
