@@ -187,3 +187,88 @@ TEST(JobChecks, ScansAtOtherAxisPositionsWithoutAxesAreNamed) {
     EXPECT_GT(named, 1);
     EXPECT_EQ(turned(r), named);
 }
+
+namespace {
+
+/// The job with the workpiece's points of the scans in `moved` displaced by `shift` (scan frame), as if
+/// the part had moved in its clamp before those scans were taken; the fiducials' points stay.
+Job part_moved_in(const sim::SimulatedJob& s, const std::vector<std::size_t>& moved,
+                  const Eigen::Vector3d& shift) {
+    Job job = s.job;
+    const int workpiece = s.cell.find("workpiece");
+    for (std::size_t i : moved) {
+        auto c = std::make_shared<open3d::geometry::PointCloud>(*job.scans[i].points);
+        for (std::size_t k = 0; k < c->points_.size(); ++k)
+            if (s.scans[i].body[k] == workpiece) c->points_[k] += shift;
+        job.scans[i].points = c;
+    }
+    return job;
+}
+
+}  // namespace
+
+// Scans that show the part in different places (it moved in its clamp, or a scan at A = 90 given without its
+// axes registered by both fiducials as at 0: seed 8 located 1.56 mm off): a minority left out with the
+// reason, the part located from the rest; where they do not outnumber the others, not located.
+TEST(JobChecks, ScansThatShowThePartElsewhereAreLeftOutOrTheRunRefuses) {
+    open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
+    const sim::SimulatedJob s = sim::simulate_random_cell(106);
+    RunSettings settings;
+    settings.threads = 2;
+    settings.build_stock = false;
+    const JobResult right = run_job(s.job, settings);
+    ASSERT_TRUE(right.workpiece.valid) << right.workpiece.reason;
+    const auto left_out = [](const JobResult& r) {
+        std::vector<std::size_t> out;
+        for (std::size_t i = 0; i < r.scans.size(); ++i)
+            if (r.scans[i].reason.find("fitted on its own points") != std::string::npos) out.push_back(i);
+        return out;
+    };
+    EXPECT_TRUE(left_out(right).empty());
+    std::vector<std::size_t> registered;
+    for (std::size_t i = 0; i < right.scans.size(); ++i)
+        if (right.scans[i].valid) registered.push_back(i);
+    ASSERT_GE(registered.size(), 4u);
+
+    // One scan's part 1 mm off: left out, named, and the part located from the others as before.
+    const Eigen::Vector3d shift = Eigen::Vector3d(1.0, 1.0, 1.0).normalized();
+    const JobResult one = run_job(part_moved_in(s, {registered[1]}, shift), settings);
+    ASSERT_TRUE(one.workpiece.valid) << one.workpiece.reason;
+    // Left out of the part, by the turned-scan check (a shift reads as a small turn about A) or by the part
+    // check; the others not.
+    for (std::size_t i = 0; i < one.scans.size(); ++i)
+        EXPECT_EQ(one.scans[i].valid, right.scans[i].valid && i != registered[1]) << one.scans[i].reason;
+    EXPECT_LT(pose_error(one.workpiece.T_machine_workpiece, s.truth.T_machine_workpiece).translation, 0.05);
+
+    // Half the scans' part 2 mm off: the part fitted between them takes the most-off scans out one by one
+    // (measured: two of the three, the third confirms no part at all), and where the rest do not outnumber
+    // them, nothing says which is right. Never a part between the two.
+    const std::vector<std::size_t> half(registered.begin(), registered.begin() + registered.size() / 2);
+    const JobResult split = run_job(part_moved_in(s, half, 2.0 * shift), settings);
+    const std::vector<std::size_t> named = left_out(split);
+    for (std::size_t i : named) EXPECT_NE(std::find(half.begin(), half.end(), i), half.end()) << i;
+    if (split.workpiece.valid) {
+        EXPECT_FALSE(named.empty());
+        EXPECT_LT(pose_error(split.workpiece.T_machine_workpiece, s.truth.T_machine_workpiece).translation,
+                  0.05);
+    } else {
+        EXPECT_NE(split.workpiece.reason.find("the scans do not show one part"), std::string::npos)
+            << split.workpiece.reason;
+    }
+}
+
+// The mistake of issue 27's table on seed 8: with `axes` left out, a scan at A = 90 registered by both
+// fiducials as at 0 and the part was located 1.56 mm off, between it and a scan at 0. Now not located.
+TEST(JobChecks, SeedEightWithoutAxesIsNotLocatedWrong) {
+    open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
+    const sim::SimulatedJob s = sim::simulate_random_cell(8);
+    RunSettings settings;
+    settings.threads = 2;
+    settings.build_stock = false;
+    Job wrong = s.job;
+    for (Scan& scan : wrong.scans) scan.axes.clear();
+    const JobResult r = run_job(wrong, settings);
+    EXPECT_FALSE(r.workpiece.valid);
+    EXPECT_NE(r.workpiece.reason.find("the scans do not show one part"), std::string::npos)
+        << r.workpiece.reason;
+}

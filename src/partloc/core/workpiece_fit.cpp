@@ -113,17 +113,56 @@ IcpResult fit_last_stage(const std::vector<Eigen::Vector3d>& points, const Surfa
     return icp_point_to_plane(points, reference, T_nominal_located, is, normals);
 }
 
+namespace {
+
+/// A scan's points relative to the nominal surfaces where `located` puts them (nominal where it is not
+/// valid), with their normals, and the reference surfaces fitted on them alone.
+struct OwnFit {
+    std::vector<Eigen::Vector3d> pts, nrm;
+    WorkpieceFit fit;
+};
+
+OwnFit own_fit(const std::vector<Eigen::Vector3d>& points, const std::vector<Eigen::Vector3d>* normals,
+               const WorkpieceFit& located, const Surface& reference, const WorkpieceFitSettings& wfs) {
+    const Eigen::Isometry3d T_nominal_located =
+        located.valid ? located.T_located_nominal.inverse() : Eigen::Isometry3d::Identity();
+    OwnFit o;
+    o.pts.reserve(points.size());
+    for (const auto& p : points) o.pts.push_back(T_nominal_located * p);
+    if (normals && normals->size() == points.size())
+        for (const auto& n : *normals) o.nrm.push_back(T_nominal_located.linear() * n);
+    o.fit = fit_reference_surfaces(o.pts, reference, wfs, o.nrm.empty() ? nullptr : &o.nrm);
+    return o;
+}
+
+/// How far the own fit moves the points along the surfaces' normals (RMS over its points on them).
+double moved_along_normals(const OwnFit& o, const Surface& reference) {
+    // Each point against the reference where its own fit puts it: the own fit moves the part by
+    // T_located_nominal, so the point sits at T_located_nominal^-1 p relative to the nominal surfaces. (Until
+    // this test, the point was moved by T_located_nominal itself, away from the surfaces: a scan 1 mm off
+    // moved its points 2 mm off, out of reach of the search, and only the points it slid along were counted.)
+    const Eigen::Isometry3d back = o.fit.T_located_nominal.inverse();
+    double sum = 0.0;
+    std::size_t on = 0;
+    for (const auto& p : o.pts) {
+        const Eigen::Vector3d q = back * p;
+        double d2 = 0.0;
+        const int k = reference.nearest(q, &d2, o.fit.distance);
+        if (k < 0) continue;
+        const double along = (p - q).dot(reference.normals[k]);
+        sum += along * along;
+        ++on;
+    }
+    return on ? std::sqrt(sum / on) : 0.0;
+}
+
+}  // namespace
+
 std::string part_disowns_scan(const std::vector<Eigen::Vector3d>& points,
                               const std::vector<Eigen::Vector3d>* normals, const WorkpieceFit& located,
                               const Surface& reference, const WorkpieceFitSettings& wfs) {
-    const Eigen::Isometry3d T_nominal_located =
-        located.valid ? located.T_located_nominal.inverse() : Eigen::Isometry3d::Identity();
-    std::vector<Eigen::Vector3d> pts, nrm;
-    pts.reserve(points.size());
-    for (const auto& p : points) pts.push_back(T_nominal_located * p);
-    if (normals && normals->size() == points.size())
-        for (const auto& n : *normals) nrm.push_back(T_nominal_located.linear() * n);
-    const WorkpieceFit own = fit_reference_surfaces(pts, reference, wfs, nrm.empty() ? nullptr : &nrm);
+    const OwnFit o = own_fit(points, normals, located, reference, wfs);
+    const WorkpieceFit& own = o.fit;
     char buf[240];
     if (own.inliers < wfs.min_inliers) {
         // Unconfirmed is not good enough for a lone fiducial: a look-alike puts the scan's points where the
@@ -132,7 +171,7 @@ std::string part_disowns_scan(const std::vector<Eigen::Vector3d>& points,
         std::snprintf(buf, sizeof buf,
                       "the part does not confirm it: %zu of its %zu points in the part's region lie on the "
                       "reference surfaces (needs %zu)",
-                      own.inliers, pts.size(), wfs.min_inliers);
+                      own.inliers, o.pts.size(), wfs.min_inliers);
         return buf;
     }
     if (!located.valid) {
@@ -144,26 +183,19 @@ std::string part_disowns_scan(const std::vector<Eigen::Vector3d>& points,
             return "the part does not confirm it: fitted on its points alone, " + own.reason;
         return {};
     }
-    // Each point against the reference where its own fit puts it: the own fit moves the part by
-    // T_located_nominal, so the point sits at T_located_nominal^-1 p relative to the nominal surfaces. (Until
-    // this test, the point was moved by T_located_nominal itself, away from the surfaces: a scan 1 mm off
-    // moved its points 2 mm off, out of reach of the search, and only the points it slid along were counted.)
-    const Eigen::Isometry3d back = own.T_located_nominal.inverse();
-    double sum = 0.0;
-    std::size_t on = 0;
-    for (const auto& p : pts) {
-        const Eigen::Vector3d q = back * p;
-        double d2 = 0.0;
-        const int k = reference.nearest(q, &d2, own.distance);
-        if (k < 0) continue;
-        const double along = (p - q).dot(reference.normals[k]);
-        sum += along * along;
-        ++on;
-    }
-    const double moved = on ? std::sqrt(sum / on) : 0.0;
+    const double moved = moved_along_normals(o, reference);
     if (moved <= 5.0 * wfs.noise) return {};
     std::snprintf(buf, sizeof buf, "the part it shows lies %.3g off the part the scans locate", moved);
     return buf;
+}
+
+double scan_part_offset(const std::vector<Eigen::Vector3d>& points,
+                        const std::vector<Eigen::Vector3d>* normals, const WorkpieceFit& located,
+                        const Surface& reference, const WorkpieceFitSettings& wfs) {
+    if (!located.valid) return -1.0;
+    const OwnFit o = own_fit(points, normals, located, reference, wfs);
+    if (o.fit.inliers < wfs.min_inliers) return -1.0;
+    return moved_along_normals(o, reference);
 }
 
 }  // namespace partloc

@@ -69,4 +69,13 @@ std::string part_disowns_scan(const std::vector<Eigen::Vector3d>& points,
                               const std::vector<Eigen::Vector3d>* normals, const WorkpieceFit& located,
                               const Surface& reference, const WorkpieceFitSettings& settings);
 
+/// How far the part that a scan's points alone show lies from `located` (valid): part_disowns_scan's
+/// measure, the RMS move along the reference surfaces' normals of its points on them when the surfaces are
+/// fitted again on them from `located` (directions the scan leaves free do not count). Negative when
+/// `located` is not valid or fewer than min_inliers of its points lie on the reference surfaces (nothing to
+/// compare).
+double scan_part_offset(const std::vector<Eigen::Vector3d>& points,
+                        const std::vector<Eigen::Vector3d>* normals, const WorkpieceFit& located,
+                        const Surface& reference, const WorkpieceFitSettings& settings);
+
 }  // namespace partloc

@@ -55,6 +55,11 @@ struct PartSettings {
     double loose = 1.0;
     double left_out_median = 3.0;
     double left_out_floor = 0.1;
+    /// A scan in the fit whose own points show the part more than `off_part_noises` noise sigmas off the
+    /// located part shows it elsewhere (scans_off_part; the lone-fiducial test's five), judged on at most
+    /// `off_part_points` of its workpiece points, evenly spread.
+    double off_part_noises = 5.0;
+    std::size_t off_part_points = 20000;
 };
 
 /// The uncertainty's jackknife (pipeline/uncertainty.hpp): at most about this many of each scan's points

@@ -294,6 +294,37 @@ std::shared_ptr<open3d::geometry::PointCloud> merge_scans(std::vector<ScanEviden
     return m;
 }
 
+std::vector<ScanOffPart> scans_off_part(const PartFit& p, const PartInputs& in, const PartSettings& ps) {
+    std::vector<ScanOffPart> out;
+    if (!p.valid || !p.fit.valid || !in.reference) return out;
+    auto& ev = *in.evidence;
+    const std::size_t n = ev.size();
+    std::vector<double> moved(n, -1.0);
+    tbb::parallel_for(std::size_t(0), n, [&](std::size_t i) {
+        if (!p.selection.registered[i] || !p.selection.in_fit[i] || !ev[i].workpiece_points) return;
+        // An even subsample, with normals only where it needs them: the whole scan cost 0.35 s a run of six
+        // scans of 250 k points (seed 106), for the same measure.
+        const auto& wp = *ev[i].workpiece_points;
+        const std::size_t stride =
+            std::max<std::size_t>(1, (wp.points_.size() + ps.off_part_points - 1) / ps.off_part_points);
+        std::vector<std::size_t> idx;
+        for (std::size_t k = 0; k < wp.points_.size(); k += stride) idx.push_back(k);
+        ev[i].normals_at(idx);
+        std::vector<Eigen::Vector3d> pts, nrm;
+        const bool normals = wp.normals_.size() == wp.points_.size();
+        for (std::size_t k : idx) {
+            pts.push_back(wp.points_[k]);
+            if (normals) nrm.push_back(wp.normals_[k]);
+        }
+        moved[i] = scan_part_offset(pts, normals ? &nrm : nullptr, p.fit, *in.reference, p.settings);
+    });
+    for (std::size_t i = 0; i < n; ++i)
+        if (moved[i] > ps.off_part_noises * p.settings.noise) out.push_back({i, moved[i]});
+    std::stable_sort(out.begin(), out.end(),
+                     [](const ScanOffPart& a, const ScanOffPart& b) { return a.moved > b.moved; });
+    return out;
+}
+
 PartFit fit_part(const PartInputs& in, PartSelection selection, const Config& config) {
     PartFit p;
     const auto& regs = *in.registrations;

@@ -502,6 +502,39 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         tell("locating the part again without the turned scans");
         part = fit_part(in, again, config);
     }
+    // Scans in the fit that show the part elsewhere than the part located from them all (pipeline/part.hpp,
+    // scans_off_part): the most-off one left out and the part fitted again while the rest outnumber those
+    // off; where they do not, the scans do not show one part and nothing says which is right.
+    for (std::size_t round = 0; part.fit.valid && round < n; ++round) {
+        const std::vector<ScanOffPart> off = scans_off_part(part, in, config.part);
+        if (off.empty()) break;
+        std::size_t in_fit = 0;
+        for (std::size_t i = 0; i < n; ++i)
+            in_fit += part.selection.registered[i] && part.selection.in_fit[i];
+        if (2 * off.size() >= in_fit) {
+            std::string which;
+            for (const ScanOffPart& o : off)
+                which += (which.empty() ? "" : ", ") + job.scans[o.scan].file + format(" by %.3g", o.moved);
+            write_scans(&part.selection);
+            return done(format(
+                "the scans do not show one part: fitted on its own points, the part lies off the part "
+                "located "
+                "from them all (%s %s, where %.3g is the noise): did the part move in its clamp between "
+                "scans, or are scans at other axis positions given without their axes?",
+                which.c_str(), job.units.c_str(), part.settings.noise));
+        }
+        const ScanOffPart& worst = off.front();
+        const std::string why = format(
+            "fitted on its own points, the part lies %.3g %s off the part the other scans locate: did the "
+            "part "
+            "move in its clamp, or are its axis values not the job's? Left out of the part",
+            worst.moved, job.units.c_str());
+        again.registered[worst.scan] = 0;
+        again.rejected[worst.scan] = why;
+        checks.push_back(job.scans[worst.scan].file + ": " + why);
+        tell("locating the part again without a scan that shows it elsewhere");
+        part = fit_part(in, again, config);
+    }
     write_scans(&part.selection);
     if (!part.selection.none_left.empty()) return done(part.reason);
     w.rmse = part.fit.rmse;
