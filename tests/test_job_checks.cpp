@@ -18,6 +18,14 @@ using namespace partloc;
 
 namespace {
 
+/// Two threads, no stock: what these checks need of a run.
+RunSettings quick_settings() {
+    RunSettings settings;
+    settings.threads = 2;
+    settings.build_stock = false;
+    return settings;
+}
+
 /// The job with every scan's coordinates multiplied by k, as if its files were written in another unit.
 Job scaled_scans(Job job, double k) {
     for (Scan& s : job.scans) {
@@ -113,9 +121,7 @@ TEST(JobChecks, CheckPrintsTheJobAndRunWarnsOfTheUnits) {
 // the allowance with a tight interval, unless the check names the faces the scans show elsewhere.
 TEST(JobChecks, FinishedFacesGivenAsTheReferenceAreNamed) {
     const sim::SimulatedJob s = sim::simulate_random_cell(106);
-    RunSettings settings;
-    settings.threads = 2;
-    settings.build_stock = false;
+    const RunSettings settings = quick_settings();
     const auto named = [](const JobResult& r) {
         int n = 0;
         for (const std::string& w : r.warnings)
@@ -146,9 +152,7 @@ TEST(JobChecks, FinishedFacesGivenAsTheReferenceAreNamed) {
 TEST(JobChecks, ScansAtOtherAxisPositionsWithoutAxesAreNamed) {
     open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
     const sim::SimulatedJob s = sim::simulate_random_cell(106);
-    RunSettings settings;
-    settings.threads = 2;
-    settings.build_stock = false;
+    const RunSettings settings = quick_settings();
     const auto turned = [](const JobResult& r) {
         int n = 0;
         for (const std::string& w : r.warnings) n += w.find("about axis A") != std::string::npos;
@@ -213,9 +217,7 @@ Job part_moved_in(const sim::SimulatedJob& s, const std::vector<std::size_t>& mo
 TEST(JobChecks, ScansThatShowThePartElsewhereAreLeftOutOrTheRunRefuses) {
     open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
     const sim::SimulatedJob s = sim::simulate_random_cell(106);
-    RunSettings settings;
-    settings.threads = 2;
-    settings.build_stock = false;
+    const RunSettings settings = quick_settings();
     const JobResult right = run_job(s.job, settings);
     ASSERT_TRUE(right.workpiece.valid) << right.workpiece.reason;
     const auto left_out = [](const JobResult& r) {
@@ -262,9 +264,7 @@ TEST(JobChecks, ScansThatShowThePartElsewhereAreLeftOutOrTheRunRefuses) {
 TEST(JobChecks, SeedEightWithoutAxesIsNotLocatedWrong) {
     open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
     const sim::SimulatedJob s = sim::simulate_random_cell(8);
-    RunSettings settings;
-    settings.threads = 2;
-    settings.build_stock = false;
+    const RunSettings settings = quick_settings();
     Job wrong = s.job;
     for (Scan& scan : wrong.scans) scan.axes.clear();
     const JobResult r = run_job(wrong, settings);

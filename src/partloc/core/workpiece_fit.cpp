@@ -184,7 +184,7 @@ std::string part_disowns_scan(const std::vector<Eigen::Vector3d>& points,
         return {};
     }
     const double moved = moved_along_normals(o, reference);
-    if (moved <= 5.0 * wfs.noise) return {};
+    if (moved <= own_fit_limit_noises * wfs.noise) return {};
     std::snprintf(buf, sizeof buf, "the part it shows lies %.3g off the part the scans locate", moved);
     return buf;
 }

@@ -51,6 +51,11 @@ IcpResult fit_last_stage(const std::vector<Eigen::Vector3d>& points, const Surfa
                          const Eigen::Isometry3d& T_nominal_located, double distance,
                          const std::vector<Eigen::Vector3d>* normals = nullptr);
 
+/// A scan's own part lies off the located part when its own fit moves its points along the reference
+/// surfaces' normals by more than this many noise sigmas: part_disowns_scan (a lone fiducial's scan) and
+/// the part stage's scans_off_part (every scan in the fit) judge by it alike.
+inline constexpr double own_fit_limit_noises = 5.0;
+
 /// Whether the part confirms a scan that one fiducial's fit alone registered (a look-alike of that fiducial,
 /// or the fiducial moved, can place such a scan): the part fitted again on the scan's workpiece points alone
 /// (machine frame, axes at 0; normals optional), from `located`, the part located from all the registered

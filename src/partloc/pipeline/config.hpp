@@ -55,10 +55,8 @@ struct PartSettings {
     double loose = 1.0;
     double left_out_median = 3.0;
     double left_out_floor = 0.1;
-    /// A scan in the fit whose own points show the part more than `off_part_noises` noise sigmas off the
-    /// located part shows it elsewhere (scans_off_part; the lone-fiducial test's five), judged on at most
-    /// `off_part_points` of its workpiece points, evenly spread.
-    double off_part_noises = 5.0;
+    /// A scan in the fit that shows the part elsewhere (scans_off_part, own_fit_limit_noises) is judged on at
+    /// most this many of its workpiece points, evenly spread.
     std::size_t off_part_points = 20000;
 };
 

@@ -296,7 +296,7 @@ std::shared_ptr<open3d::geometry::PointCloud> merge_scans(std::vector<ScanEviden
 
 std::vector<ScanOffPart> scans_off_part(const PartFit& p, const PartInputs& in, const PartSettings& ps) {
     std::vector<ScanOffPart> out;
-    if (!p.valid || !p.fit.valid || !in.reference) return out;
+    if (!p.fit.valid || !in.reference) return out;
     auto& ev = *in.evidence;
     const std::size_t n = ev.size();
     std::vector<double> moved(n, -1.0);
@@ -319,7 +319,7 @@ std::vector<ScanOffPart> scans_off_part(const PartFit& p, const PartInputs& in, 
         moved[i] = scan_part_offset(pts, normals ? &nrm : nullptr, p.fit, *in.reference, p.settings);
     });
     for (std::size_t i = 0; i < n; ++i)
-        if (moved[i] > ps.off_part_noises * p.settings.noise) out.push_back({i, moved[i]});
+        if (moved[i] > own_fit_limit_noises * p.settings.noise) out.push_back({i, moved[i]});
     std::stable_sort(out.begin(), out.end(),
                      [](const ScanOffPart& a, const ScanOffPart& b) { return a.moved > b.moved; });
     return out;

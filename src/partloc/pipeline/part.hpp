@@ -100,11 +100,11 @@ struct ScanOffPart {
     double moved = 0.0;  ///< scan_part_offset: RMS along the reference surfaces' normals (job units)
 };
 
-/// The scans in `p`'s fit, however many fiducials placed them, whose part lies more than off_part_noises off
-/// the located part (scan_part_offset, the lone-fiducial test of next_selection): together they do not show
-/// one part. The part moved in its clamp between scans, or a scan's axis values are not the job's and no turn
-/// about one axis explains it (issue 27: seed 8 with `axes` left out registered a scan at A = 90 as at 0 with
-/// both fiducials, and the part was located 1.56 mm off between the two). Most-off first.
+/// The scans in `p`'s fit, however many fiducials placed them, whose part lies more than own_fit_limit_noises
+/// off the located part (scan_part_offset, the lone-fiducial test of next_selection): together they do not
+/// show one part. The part moved in its clamp between scans, or a scan's axis values are not the job's and no
+/// turn about one axis explains it (issue 27: seed 8 with `axes` left out registered a scan at A = 90 as at 0
+/// with both fiducials, and the part was located 1.56 mm off between the two). Most-off first.
 std::vector<ScanOffPart> scans_off_part(const PartFit& p, const PartInputs& in, const PartSettings& settings);
 
 /// The registered scans' workpiece points (those in the fit only, when fit_only), thinned by their order to

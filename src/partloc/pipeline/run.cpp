@@ -516,18 +516,16 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
             for (const ScanOffPart& o : off)
                 which += (which.empty() ? "" : ", ") + job.scans[o.scan].file + format(" by %.3g", o.moved);
             write_scans(&part.selection);
-            return done(format(
-                "the scans do not show one part: fitted on its own points, the part lies off the part "
-                "located "
-                "from them all (%s %s, where %.3g is the noise): did the part move in its clamp between "
-                "scans, or are scans at other axis positions given without their axes?",
-                which.c_str(), job.units.c_str(), part.settings.noise));
+            return done(
+                format("the scans do not show one part: fitted on its own points, the part lies off the part "
+                       "located from them all (%s %s, where %.3g is the noise): did the part move in its "
+                       "clamp between scans, or are scans at other axis positions given without their axes?",
+                       which.c_str(), job.units.c_str(), part.settings.noise));
         }
         const ScanOffPart& worst = off.front();
         const std::string why = format(
             "fitted on its own points, the part lies %.3g %s off the part the other scans locate: did the "
-            "part "
-            "move in its clamp, or are its axis values not the job's? Left out of the part",
+            "part move in its clamp, or are its axis values not the job's? Left out of the part",
             worst.moved, job.units.c_str());
         again.registered[worst.scan] = 0;
         again.rejected[worst.scan] = why;
