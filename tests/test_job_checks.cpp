@@ -1,6 +1,7 @@
 // The job's own checks (pipeline/job_checks.hpp) and `partloc check` (issue 27): scans in other units than
 // the job says are named with the unit they would fit, and correct jobs draw no warning.
 #include <gtest/gtest.h>
+#include <open3d/io/TriangleMeshIO.h>
 
 #include <cstdio>
 #include <filesystem>
@@ -11,6 +12,7 @@
 #include "partloc/pipeline/job_checks.hpp"
 #include "partloc/pipeline/run.hpp"
 #include "partloc/sim/scenario.hpp"
+#include "partloc/sim/shapes.hpp"
 #include "test_util.hpp"
 
 namespace fs = std::filesystem;
@@ -115,6 +117,31 @@ TEST(JobChecks, CheckPrintsTheJobAndRunWarnsOfTheUnits) {
     const std::string refused = test::slurp(log);
     EXPECT_NE(refused.find("none.ply"), std::string::npos) << refused;
     EXPECT_EQ(std::count(refused.begin(), refused.end(), '\n'), 1) << refused;
+}
+
+// A fiducial that maps onto itself by a turn (issue 25: symmetric fiducials) is named when the job is read:
+// it cannot place a scan alone. The simulated blocks, of no symmetry, are not.
+TEST(JobChecks, ASymmetricFiducialIsNamedWhenTheJobIsRead) {
+    test::TempFolder tmp("partloc_symmetric");
+    const fs::path cell = tmp.dir / "cell", log = tmp.dir / "log.txt";
+    ASSERT_EQ(
+        test::shell("'" PARTLOC_EXE "' simulate --out '" + cell.string() + "' --seed 3 > /dev/null 2>&1"), 0);
+    sim::HeightField box;
+    box.x_edges = {0, 15, 45, 60};
+    box.y_edges = {0, 30};
+    box.top = {20, 30, 20};
+    ASSERT_TRUE(open3d::io::WriteTriangleMesh((cell / "models" / "fiducial_B.stl").string(),
+                                              *sim::make_height_field_block(box)));
+    ASSERT_EQ(test::shell("'" PARTLOC_EXE "' check '" + (cell / "job.yaml").string() + "' > '" +
+                          log.string() + "' 2>&1"),
+              0)
+        << test::slurp(log);
+    const std::string said = test::slurp(log);
+    EXPECT_NE(said.find("warnings: 1\n"), std::string::npos) << said;
+    EXPECT_NE(
+        said.find("fiducial B cannot place a scan alone: it maps onto itself turned 180 deg about (0, 0, 1)"),
+        std::string::npos)
+        << said;
 }
 
 // The finished part's faces given as the reference surfaces (issue 27's first mistake): located off by

@@ -192,3 +192,60 @@ TEST(RegisterScan, AScanOfNoFiducialIsRejectedWithAReason) {
     EXPECT_FALSE(r.valid);
     EXPECT_FALSE(r.reason.empty());
 }
+
+namespace {
+
+// A block stepped alike at both ends: a half turn about its vertical axis maps it onto itself.
+std::shared_ptr<open3d::geometry::TriangleMesh> block_symmetric() {
+    sim::HeightField hf;
+    hf.x_edges = {0, 15, 45, 60};
+    hf.y_edges = {0, 30};
+    hf.top = {20, 30, 20};
+    return sim::make_height_field_block(hf);
+}
+
+}  // namespace
+
+TEST(RegisterScan, AScanThatOnlyASymmetricFiducialPlacesIsAmbiguousByItsSymmetry) {
+    // Eight looks at the symmetric block alone, from all sides: every one is rejected, naming the symmetry
+    // (each turn of the block puts the scanner elsewhere; none may be accepted). Without the symmetry test,
+    // 40 such looks gave 39 rejected as ambiguous between two placements and one accepted 180 deg off.
+    const PreparedModel s = prepare_model("S", block_symmetric().get(), nullptr, 0.5, 3.0);
+    ASSERT_EQ(s.symmetry.turns.size(), 1u) << s.symmetry.sentence();
+    const Eigen::Isometry3d T_machine_scan = pose(20, {0.2, 0.1, 1}, {100, 200, 300});
+    for (int look = 0; look < 8; ++look) {
+        const Eigen::Isometry3d T_scan_s =
+            pose(30 + 5 * (look % 3), {std::cos(look * 0.8), std::sin(look * 0.8), 0}, {-20, 5, 380}) *
+            pose(180 + 45 * look, {0, 0, 1}, {0, 0, 0}) * pose(180, {1, 0, 0}, {0, 0, 0});
+        std::mt19937 rng(look);
+        open3d::geometry::PointCloud cloud;
+        view(*block_symmetric(), T_scan_s, 0.05, rng, cloud);
+        const PreparedScan scan = prepare_scan(cloud, {0.4, 0.05}, 3.0, Eigen::Vector3d::Zero());
+        const ScanRegistration r = register_scan(scan, {{"S", &s, T_machine_scan * T_scan_s}}, {});
+        EXPECT_FALSE(r.valid) << "look " << look << ": "
+                              << pose_error(r.T_machine_scan, T_machine_scan).rotation_deg << " deg off";
+        EXPECT_EQ(
+            r.reason.rfind(
+                "ambiguous by the symmetry of S: it maps onto itself turned 180 deg about (0, 0, 1)", 0),
+            0u)
+            << "look " << look << ": " << r.reason;
+    }
+}
+
+TEST(RegisterScan, ASymmetricFiducialWithAnotherInViewPlacesTheScan) {
+    const PreparedModel s = prepare_model("S", block_symmetric().get(), nullptr, 0.5, 3.0);
+    const Scene& sc = scene();
+    std::mt19937 rng(5);
+    open3d::geometry::PointCloud cloud;
+    view(*block_symmetric(), sc.T_scan_a, 0.05, rng, cloud);
+    view(*block_b(), sc.T_scan_b, 0.05, rng, cloud);
+    const PreparedScan scan = prepare_scan(cloud, {0.4, 0.05}, 3.0, Eigen::Vector3d::Zero());
+    const std::vector<PlacedFiducial> placed = {{"S", &s, sc.T_machine_scan * sc.T_scan_a},
+                                                {"B", &sc.b, sc.T_machine_scan * sc.T_scan_b}};
+    const ScanRegistration r = register_scan(scan, placed, {});
+    ASSERT_TRUE(r.valid) << r.reason;
+    EXPECT_EQ(r.fiducials, (std::vector<std::size_t>{0, 1}));
+    const PoseError e = pose_error(r.T_machine_scan, sc.T_machine_scan);
+    EXPECT_LT(e.translation, 0.02);
+    EXPECT_LT(e.rotation_deg, 0.01);
+}

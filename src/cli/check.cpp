@@ -111,6 +111,7 @@ int command_check(const std::string& job_file) {
     }
     std::vector<std::string> warnings = job.warnings;
     for (const std::string& s : unit_warnings(job, scans)) warnings.push_back(s);
+    for (const std::string& s : symmetry_warnings(job)) warnings.push_back(s);
     if (warnings.empty()) {
         out << "warnings: none that can be seen before the scans are registered\n";
     } else {

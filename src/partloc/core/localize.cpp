@@ -120,6 +120,7 @@ PreparedModel prepare_model(const std::string& name, const open3d::geometry::Tri
     PpfSettings ps;
     ps.sampling = sampling;
     m.ppf = std::make_shared<PpfModel>(coarse->points_, coarse->normals_, ps);
+    m.symmetry = find_symmetry(m.dense);
     return m;
 }
 

@@ -15,6 +15,7 @@
 #include "partloc/core/ppf.hpp"
 #include "partloc/core/radius_grid.hpp"
 #include "partloc/core/surface.hpp"
+#include "partloc/core/symmetry.hpp"
 #include "partloc/core/verify.hpp"
 
 namespace partloc {
@@ -63,10 +64,11 @@ struct PreparedModel {
     Surface dense;                  ///< for the fine fit and the verification
     std::shared_ptr<PpfModel> ppf;  ///< for the global fit
     double sampling = 0.0;          ///< PPF sampling (job units)
+    Symmetry symmetry;              ///< the turns that map `dense` onto itself (symmetry.hpp)
 };
 
 /// Samples the model (a mesh by Poisson disk at `dense_spacing`, or points with normals as they are) and
-/// builds its PPF table at `sampling`.
+/// builds its PPF table at `sampling`; finds its self-symmetries.
 PreparedModel prepare_model(const std::string& name, const open3d::geometry::TriangleMesh* mesh,
                             const open3d::geometry::PointCloud* points, double dense_spacing,
                             double sampling);

@@ -289,6 +289,24 @@ std::string rival_reason(const Hypothesis& top, const std::vector<Hypothesis>& h
     return "";
 }
 
+std::string symmetry_reason(const std::vector<std::size_t>& placing,
+                            const std::vector<PlacedFiducial>& fiducials) {
+    std::vector<PlacedSymmetry> models;
+    for (std::size_t g : placing)
+        if (g < fiducials.size() && fiducials[g].model)
+            models.push_back(
+                {&fiducials[g].model->dense, &fiducials[g].model->symmetry, fiducials[g].T_machine_fiducial});
+    std::size_t source = 0;
+    if (models.empty() || !common_symmetry(models, nullptr, &source)) return "";
+    const PlacedFiducial& f = fiducials[placing[source]];
+    if (placing.size() == 1)
+        return "ambiguous by the symmetry of " + f.name + ": " + f.model->symmetry.sentence() +
+               " (its own frame), and no other fiducial in view tells its turns apart";
+    return "ambiguous by the symmetry of " + names_of(fiducials, placing) + ": a turn that maps " + f.name +
+           " onto itself (" + f.model->symmetry.sentence() +
+           ", its own frame) maps the others onto themselves too";
+}
+
 ScanRegistration register_scan(const PreparedScan& scan, const std::vector<PlacedFiducial>& fiducials,
                                const LocalizeSettings& localize, const RegistrationSettings& settings) {
     Search search(scan, fiducials, localize, settings);
@@ -312,6 +330,7 @@ ScanRegistration register_scan(const PreparedScan& scan, const std::vector<Place
         return done(why);
     }
     const double noise = scan.scale.noise;
+    if (std::string why = symmetry_reason(top->explained, fiducials); !why.empty()) return done(why);
     if (std::string why = rival_reason(*top, search.hyps, fiducials, noise, localize, settings); !why.empty())
         return done(why);
     for (std::size_t g : top->contradicted) {
@@ -365,6 +384,7 @@ ScanRegistration register_scan(const PreparedScan& scan, const std::vector<Place
                         " here: one of them moved or was probed wrong");
         }
     }
+    if (std::string why = symmetry_reason(in_view, fiducials); !why.empty()) return done(why);
     r.valid = true;
     r.fiducials = in_view;
     r.source = top->source;

@@ -97,6 +97,11 @@ struct ScanRegistration {
     std::vector<Hypothesis> hypotheses;
 };
 
+/// Why the fiducials `placing` (indices into `fiducials`) cannot place a scan together: a turn of the
+/// machine that maps each of them onto itself (symmetry.hpp); empty when they fix all six degrees of freedom.
+std::string symmetry_reason(const std::vector<std::size_t>& placing,
+                            const std::vector<PlacedFiducial>& fiducials);
+
 /// Registers one scan by the fiducials placed at its axis values (all with the same PreparedModel::sampling).
 ScanRegistration register_scan(const PreparedScan& scan, const std::vector<PlacedFiducial>& fiducials,
                                const LocalizeSettings& localize, const RegistrationSettings& settings = {});

@@ -220,6 +220,7 @@ PreparedModel decode(const char* payload, std::size_t size, const std::string& n
     ps.sampling = sampling;
     m.ppf = std::make_shared<PpfModel>(points, normals, ps, std::move(offsets), std::move(entries),
                                        static_cast<std::size_t>(max_bucket));
+    m.symmetry = find_symmetry(m.dense);  // found again, as prepare_model finds it: not stored
     return m;
 }
 

@@ -31,6 +31,31 @@ std::vector<ScanSummary> summarise_scans(const Job& job, const std::vector<doubl
     return out;
 }
 
+std::vector<std::string> symmetry_warnings(const Job& job, const std::vector<PreparedModel>& models) {
+    std::vector<std::string> out;
+    for (std::size_t k = 0; k < models.size() && k < job.fiducials.size(); ++k)
+        if (models[k].symmetry.any())
+            out.push_back(
+                "fiducial " + job.fiducials[k].name +
+                " cannot place a scan alone: " + models[k].symmetry.sentence() +
+                " (its own frame); a scan needs another fiducial in view that tells its turns apart");
+    return out;
+}
+
+std::vector<std::string> symmetry_warnings(const Job& job) {
+    std::vector<PreparedModel> models;
+    for (const Fiducial& f : job.fiducials) {
+        const double d = bounding_box(f.model).diagonal().norm();
+        if (!(d > 0) || !std::isfinite(d)) {
+            models.emplace_back();
+            continue;
+        }
+        models.push_back(
+            prepare_model(f.name, f.model.mesh.get(), f.model.points.get(), d / 150.0, d / 25.0));
+    }
+    return symmetry_warnings(job, models);
+}
+
 std::vector<std::string> unit_warnings(const Job& job, const std::vector<ScanSummary>& scans,
                                        const UnitCheckSettings& settings) {
     std::vector<double> sizes;

@@ -7,6 +7,7 @@
 #include <string>
 #include <vector>
 
+#include "partloc/core/localize.hpp"
 #include "partloc/core/surface.hpp"
 #include "partloc/pipeline/job.hpp"
 
@@ -35,6 +36,13 @@ struct UnitCheckSettings {
 /// the unit in which it would be plausible ("did you mean units: m?") where one is.
 std::vector<std::string> unit_warnings(const Job& job, const std::vector<ScanSummary>& scans,
                                        const UnitCheckSettings& settings = {});
+
+/// A sentence for each fiducial whose prepared model (`models`, in the job's order) maps onto itself by a
+/// turn (issue 25: symmetric fiducials): it cannot place a scan alone; a scan needs another fiducial in view
+/// that tells its turns apart.
+std::vector<std::string> symmetry_warnings(const Job& job, const std::vector<PreparedModel>& models);
+/// The same before the scans are measured (`partloc check`): each model prepared at 1/150 of its diameter.
+std::vector<std::string> symmetry_warnings(const Job& job);
 
 struct ReferenceCheckSettings {
     double face_angle_deg = 20.0;  ///< reference samples of one face: neighbours whose normals turn less

@@ -440,6 +440,7 @@ JobResult run_job(const Job& job, const RunSettings& settings) {
         for (const Scale& s : prep.scales) spacings.push_back(job.scanner.point_spacing ? 0.0 : s.spacing);
         checks = unit_warnings(job, summarise_scans(job, &spacings));
     }
+    for (std::string& s : symmetry_warnings(job, prep.models)) checks.push_back(std::move(s));
 
     // Register the scans (§3.4.1, in parallel; each scan's outcome depends on that scan alone).
     const std::size_t n = job.scans.size();
