@@ -1,5 +1,5 @@
 // `partloc demo` from the outside (issue 27): the figures the README quotes for it are what it prints, and
-// `partloc run` on each job it wrote gives its answer, scan by scan.
+// `partloc run` on the jobs it wrote gives its answer, scan by scan.
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -84,8 +84,11 @@ TEST_F(Demo, ReadmeQuotesWhatItPrintsAndRunOnItsJobsGivesItsAnswer) {
     EXPECT_EQ(m[3].str(), d.mean_xyz);
     EXPECT_EQ(m[4].str(), d.mean_rot);
 
-    // `partloc run` on each job the demo wrote: the same status and message of every scan, the same pose.
-    for (int test = 1; test <= 5; ++test) {
+    // `partloc run` on jobs the demo wrote: the same status and message of every scan, the same pose. Test 2
+    // is the one whose scans once differed (the demo ran the in-memory doubles, not the written floats), and
+    // test 5 another. Tests 1, 3 and 4 are left out to keep the suite's time: the demo runs each job as
+    // `run` loads it, so they would take the same path again.
+    for (int test : {2, 5}) {
         SCOPED_TRACE("test " + std::to_string(test));
         const fs::path job = out / ("test_" + std::to_string(test)),
                        rerun = dir_ / ("run_" + std::to_string(test));
