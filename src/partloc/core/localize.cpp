@@ -83,7 +83,37 @@ std::shared_ptr<open3d::geometry::PointCloud> visible_part(
     return kept;
 }
 
+/// The model's samples `spacing` apart, with normals as they come (not yet of unit length): a mesh's visible
+/// samples, or the points as they are (their normals estimated when they have none).
+std::shared_ptr<open3d::geometry::PointCloud> model_samples(const std::string& name,
+                                                            const open3d::geometry::TriangleMesh* mesh,
+                                                            const open3d::geometry::PointCloud* points,
+                                                            double spacing) {
+    // What a scanner can see of a mesh: samples on faces inside the solid are dropped (visible_surface.hpp).
+    if (mesh && !mesh->triangles_.empty()) return visible_part(sample_mesh(*mesh, spacing), *mesh);
+    if (!points || points->points_.empty())
+        throw std::invalid_argument(name + ": model has neither triangles nor points");
+    auto dense = std::make_shared<open3d::geometry::PointCloud>();
+    dense->points_ = points->points_;
+    if (points->HasNormals()) {
+        dense->normals_ = points->normals_;
+    } else {
+        // A point model without normals: estimate them and orient them consistently (outward is then a
+        // guess; the fit uses them only up to sign).
+        dense->EstimateNormals(open3d::geometry::KDTreeSearchParamKNN(20));
+        dense->OrientNormalsConsistentTangentPlane(12);
+    }
+    return dense;
+}
+
 }  // namespace
+
+Surface model_surface(const std::string& name, const open3d::geometry::TriangleMesh* mesh,
+                      const open3d::geometry::PointCloud* points, double spacing) {
+    std::shared_ptr<open3d::geometry::PointCloud> samples = model_samples(name, mesh, points, spacing);
+    samples->normals_ = normalized(samples->normals_);
+    return make_surface(samples, spacing);
+}
 
 PreparedModel prepare_model(const std::string& name, const open3d::geometry::TriangleMesh* mesh,
                             const open3d::geometry::PointCloud* points, double dense_spacing,
@@ -91,26 +121,11 @@ PreparedModel prepare_model(const std::string& name, const open3d::geometry::Tri
     PreparedModel m;
     m.name = name;
     m.sampling = sampling;
-    std::shared_ptr<open3d::geometry::PointCloud> dense, coarse;
-    if (mesh && !mesh->triangles_.empty()) {
-        // What a scanner can see of it: samples on faces inside the solid are dropped (visible_surface.hpp).
-        dense = visible_part(sample_mesh(*mesh, dense_spacing), *mesh);
-        coarse = visible_part(sample_mesh(*mesh, sampling), *mesh);
-    } else if (points && !points->points_.empty()) {
-        dense = std::make_shared<open3d::geometry::PointCloud>();
-        dense->points_ = points->points_;
-        if (points->HasNormals()) {
-            dense->normals_ = points->normals_;
-        } else {
-            // A point model without normals: estimate them and orient them consistently (outward is then
-            // a guess; the fit uses them only up to sign).
-            dense->EstimateNormals(open3d::geometry::KDTreeSearchParamKNN(20));
-            dense->OrientNormalsConsistentTangentPlane(12);
-        }
-        coarse = dense->VoxelDownSample(sampling);
-    } else {
-        throw std::invalid_argument(name + ": model has neither triangles nor points");
-    }
+    std::shared_ptr<open3d::geometry::PointCloud> dense = model_samples(name, mesh, points, dense_spacing);
+    // A mesh is sampled again at the PPF sampling; points are thinned to it (normals averaged as they come).
+    std::shared_ptr<open3d::geometry::PointCloud> coarse = mesh && !mesh->triangles_.empty()
+                                                               ? model_samples(name, mesh, points, sampling)
+                                                               : dense->VoxelDownSample(sampling);
     dense->normals_ = normalized(dense->normals_);
     coarse->normals_ = normalized(coarse->normals_);
     m.dense = make_surface(dense, dense_spacing);

@@ -67,6 +67,12 @@ struct PreparedModel {
     Symmetry symmetry;              ///< the turns that map `dense` onto itself (symmetry.hpp)
 };
 
+/// What a scanner can see of a model, as prepare_model's `dense` surface: a mesh's samples `spacing` apart
+/// that can be seen from outside it, or the points as they are; unit normals. Throws std::invalid_argument
+/// when the model has neither triangles nor points.
+Surface model_surface(const std::string& name, const open3d::geometry::TriangleMesh* mesh,
+                      const open3d::geometry::PointCloud* points, double spacing);
+
 /// Samples the model (a mesh by Poisson disk at `dense_spacing`, or points with normals as they are) and
 /// builds its PPF table at `sampling`; finds its self-symmetries.
 PreparedModel prepare_model(const std::string& name, const open3d::geometry::TriangleMesh* mesh,

@@ -378,13 +378,14 @@ ScanRegistration register_scan(const PreparedScan& scan, const std::vector<Place
             r.moved.push_back(c.d.k);
             in_view = c.rest;
             joint = c.fit;
+            // The others alone may share a turn that the one left out told apart.
+            if (std::string why = symmetry_reason(in_view, fiducials); !why.empty()) return done(why);
         } else if (!bad.empty()) {
             return done("fiducials " + names_of(fiducials, in_view) + " disagree" +
                         format(" by up to %.3g", bad.front().shift) +
                         " here: one of them moved or was probed wrong");
         }
     }
-    if (std::string why = symmetry_reason(in_view, fiducials); !why.empty()) return done(why);
     r.valid = true;
     r.fiducials = in_view;
     r.source = top->source;

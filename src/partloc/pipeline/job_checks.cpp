@@ -31,29 +31,34 @@ std::vector<ScanSummary> summarise_scans(const Job& job, const std::vector<doubl
     return out;
 }
 
+namespace {
+
+std::string symmetry_warning(const std::string& fiducial, const Symmetry& symmetry) {
+    return "fiducial " + fiducial + " cannot place a scan alone: " + symmetry.sentence() +
+           " (its own frame); a scan needs another fiducial in view that tells its turns apart";
+}
+
+}  // namespace
+
 std::vector<std::string> symmetry_warnings(const Job& job, const std::vector<PreparedModel>& models) {
     std::vector<std::string> out;
     for (std::size_t k = 0; k < models.size() && k < job.fiducials.size(); ++k)
         if (models[k].symmetry.any())
-            out.push_back(
-                "fiducial " + job.fiducials[k].name +
-                " cannot place a scan alone: " + models[k].symmetry.sentence() +
-                " (its own frame); a scan needs another fiducial in view that tells its turns apart");
+            out.push_back(symmetry_warning(job.fiducials[k].name, models[k].symmetry));
     return out;
 }
 
 std::vector<std::string> symmetry_warnings(const Job& job) {
-    std::vector<PreparedModel> models;
+    std::vector<std::string> out;
     for (const Fiducial& f : job.fiducials) {
         const double d = bounding_box(f.model).diagonal().norm();
-        if (!(d > 0) || !std::isfinite(d)) {
-            models.emplace_back();
-            continue;
-        }
-        models.push_back(
-            prepare_model(f.name, f.model.mesh.get(), f.model.points.get(), d / 150.0, d / 25.0));
+        if (!(d > 0) || !std::isfinite(d)) continue;
+        // Only the surface the symmetry is found on: no PPF table, as prepare_model would build.
+        const Symmetry s =
+            find_symmetry(model_surface(f.name, f.model.mesh.get(), f.model.points.get(), d / 150.0));
+        if (s.any()) out.push_back(symmetry_warning(f.name, s));
     }
-    return symmetry_warnings(job, models);
+    return out;
 }
 
 std::vector<std::string> unit_warnings(const Job& job, const std::vector<ScanSummary>& scans,
