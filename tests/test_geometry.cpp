@@ -44,3 +44,31 @@ TEST(Kinematics, RotaryAxisTurnsAboutItsLine) {
     EXPECT_NEAR((M * Eigen::Vector3d(0, 10, 5) - Eigen::Vector3d(0, 5, 0)).norm(), 0, 1e-12);
     EXPECT_THROW(m.motion({"B"}, {}), std::invalid_argument);
 }
+
+TEST(Geometry, LeastShareIsTheWeakestDirectionsShareInAnyFrameAndUnit) {
+    std::mt19937 rng(4);
+    std::normal_distribution<double> g(0.0, 1.0);
+    // Random rows J: the part holds the first five coordinates, not the sixth; the rest of the points hold
+    // only the sixth.
+    Matrix6d part = Matrix6d::Zero();
+    for (int i = 0; i < 200; ++i) {
+        Vector6d j;
+        for (int k = 0; k < 5; ++k) j[k] = g(rng);
+        j[5] = 0.0;
+        part += j * j.transpose();
+    }
+    Matrix6d extra = Matrix6d::Zero();
+    extra(5, 5) = 9.0 * part.trace() / 5.0;  // the rest hold only the sixth
+    Matrix6d part6 = part;
+    part6(5, 5) = extra(5, 5) / 9.0;
+    EXPECT_NEAR(least_share(part, part + extra), 0.0, 1e-9);  // the sixth held by none of the part
+    const double mu = least_share(part6, part6 + extra);
+    EXPECT_NEAR(mu, 0.1, 1e-9);  // e / 9 of the sixth's e / 9 + e
+    EXPECT_NEAR(least_share(part6, part6), 1.0, 1e-9);
+    // Another frame and unit: information transforms as A^T H A for any invertible change of twist A.
+    Matrix6d A;
+    for (int r = 0; r < 6; ++r)
+        for (int c = 0; c < 6; ++c) A(r, c) = g(rng) * (c < 3 ? 1000.0 : 1.0);
+    EXPECT_NEAR(least_share(A.transpose() * part6 * A, A.transpose() * (part6 + extra) * A), mu, 1e-6);
+    EXPECT_EQ(least_share(part, part), 0.0);  // the sixth held by nothing at all: no share
+}

@@ -124,11 +124,12 @@ struct DisturbedRun {
     JobResult result;
     PoseError error;
 };
-DisturbedRun run_disturbed(std::uint64_t seed) {
+DisturbedRun run_disturbed(std::uint64_t seed, const RegistrationSettings& registration = {}) {
     sim::SimulatedJob sj = sim::simulate_random_cell(seed);
     sim::disturb_probing(sj.job, seed);
     RunSettings rs;
     rs.build_stock = false;
+    rs.config.registration = registration;
     DisturbedRun d{run_job(sj.job, rs), {}};
     EXPECT_TRUE(d.result.workpiece.valid) << d.result.workpiece.reason;
     if (d.result.workpiece.valid)
@@ -153,11 +154,25 @@ TEST(PartFit, AWideFirstStageThatSlidesOffDoesNotWin) {
 
 // Seed 1143: scan 3 is placed by fiducials B and C seen so that its registration leaves the part uncertain
 // by 0.076 mm (1 sigma) along y, against at most 0.009 mm for the other scans; it is 0.21 mm off there, and
-// with it the part was located 0.074 mm off. It stays registered, with a warning, and the part is fitted
-// without it.
+// with it the part was located 0.074 mm off. The surfaces the scanner faces hold 1.1 % of its fit along
+// that direction: the scan is rejected as held only by surfaces seen edge-on. Without that check it stays
+// registered, with a warning, and the part is fitted without it.
 TEST(PartFit, AScanWhoseRegistrationIsFarLessCertainIsLeftOutOfIt) {
     open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
-    const DisturbedRun d = run_disturbed(1143);
+    {
+        const DisturbedRun d = run_disturbed(1143);
+        ASSERT_TRUE(d.result.workpiece.valid);
+        ASSERT_EQ(d.result.scans.size(), 6u);
+        EXPECT_FALSE(d.result.scans[3].valid);
+        EXPECT_EQ(d.result.scans[3].reason.rfind("one direction is held only by surfaces seen edge-on", 0),
+                  0u)
+            << d.result.scans[3].reason;
+        EXPECT_LT(d.error.translation, 0.04);
+        EXPECT_LT(d.error.rotation_deg, 0.03);
+    }
+    RegistrationSettings no_edge_check;
+    no_edge_check.min_facing_share = 0.0;
+    const DisturbedRun d = run_disturbed(1143, no_edge_check);
     ASSERT_TRUE(d.result.workpiece.valid);
     int left_out = 0;
     for (const auto& r : d.result.scans) {
@@ -193,6 +208,9 @@ TEST(PartFit, AScanLeftOutOfTheFitIsStillInMergedAndTheStock) {
     sim::disturb_probing(sj.job, 1143);
     RunSettings rs;
     rs.build_stock = true;
+    // Scan 3 is held along one direction only by surfaces seen edge-on (above): without that check it is
+    // registered, and then left out of the part's fit.
+    rs.config.registration.min_facing_share = 0.0;
     const JobResult all = run_job(sj.job, rs);
     ASSERT_TRUE(all.workpiece.valid) << all.workpiece.reason;
     std::size_t left_out = all.scans.size();
@@ -411,7 +429,9 @@ TEST(MirroredFiducial, ScanHeldTooLooselyIsRejected) {
     open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
     sim::SimulatedJob sj = sim::simulate_random_cell(1430);
     sim::disturb_probing(sj.job, 1430);
-    check_lone_scan_with_a_mirrored(sj, 3, "the fiducials in view hold it too loosely");
+    // The mirrored model's fit is held along one direction only by surfaces seen edge-on (0 % from those
+    // faced); before that check the part's check rejected it, "the fiducials in view hold it too loosely".
+    check_lone_scan_with_a_mirrored(sj, 3, "one direction is held only by surfaces seen edge-on");
 }
 
 // Issue 3: results do not depend on the number of threads. Every number the pipeline produces, to the last

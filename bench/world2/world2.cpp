@@ -553,6 +553,7 @@ Mesh rect(Vector3d o, Vector3d e1, Vector3d e2) {  // a rectangle facing e1 x e2
 
 bool g_ideal =
     false;  // --ideal: a perfect sensor (no noise, bias, smoothing, dropout, scale error, outliers)
+bool g_no_scale = false;  // --no-scale: the sensor as drawn, but without its scale error
 
 Cell build_cell(uint64_t seed, bool small) {
     Rng r(seed);
@@ -692,6 +693,7 @@ Cell build_cell(uint64_t seed, bool small) {
         s.edge_p = r.uni(0.4, 1.0);
         s.scale = r.uni(-0.0012, 0.0012);
         s.outliers = r.chance(0.3) ? r.uni(0.002, 0.02) : 0.0;
+        if (g_no_scale) s.scale = 0;
         if (g_ideal) s.noise = 0.01, s.bias = 0, s.smooth = 0, s.edge_p = 0, s.scale = 0, s.outliers = 0;
         return s;
     };
@@ -1018,12 +1020,14 @@ int main(int argc, char** argv) {
                 small = true;
             else if (a == "--ideal")
                 g_ideal = true;
+            else if (a == "--no-scale")
+                g_no_scale = true;
             else if (a == "--selftest")
                 return selftest();
             else if (a == "-h" || a == "--help") {
                 std::printf(
                     "partloc_world2 --out DIR [--seed N] [--unit um|mm|m|in] [--small] "
-                    "[--ideal]\npartloc_world2 --selftest\n");
+                    "[--ideal] [--no-scale]\npartloc_world2 --selftest\n");
                 return 0;
             } else
                 throw std::runtime_error("unknown option " + a);

@@ -1,5 +1,7 @@
 #include "partloc/core/geometry.hpp"
 
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
@@ -91,6 +93,17 @@ Eigen::Matrix3d shift_covariance_at(const Matrix6d& twist_cov, const Eigen::Vect
     Eigen::Matrix<double, 3, 6> J;  // shift at p = v + w x p = -[p]x w + v
     J << -skew(p), Eigen::Matrix3d::Identity();
     return J * twist_cov * J.transpose();
+}
+
+double least_share(const Matrix6d& part, const Matrix6d& whole) {
+    // whole = L L^T; part u = mu whole u  <=>  (L^-1 part L^-T) y = mu y with y = L^T u.
+    const Eigen::LLT<Matrix6d> llt(whole);
+    if (llt.info() != Eigen::Success) return 0.0;
+    const Eigen::Matrix<double, 6, 6> L = llt.matrixL();
+    const Matrix6d a =
+        L.triangularView<Eigen::Lower>().solve(L.triangularView<Eigen::Lower>().solve(part).transpose());
+    const Eigen::SelfAdjointEigenSolver<Matrix6d> es(0.5 * (a + a.transpose()), Eigen::EigenvaluesOnly);
+    return std::clamp(es.eigenvalues()(0), 0.0, 1.0);
 }
 
 }  // namespace partloc

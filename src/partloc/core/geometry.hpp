@@ -58,4 +58,9 @@ Eigen::Matrix3d skew(const Eigen::Vector3d& v);
 /// (twist [w, v] about the origin).
 Eigen::Matrix3d shift_covariance_at(const Matrix6d& twist_cov, const Eigen::Vector3d& p);
 
+/// The smallest share of a fit's information that a part of its points holds in any one direction: the
+/// least generalised eigenvalue mu of part u = mu whole u, 0..1 (0 when `whole` is singular). The same in
+/// every frame and unit, as it compares the two along each direction.
+double least_share(const Matrix6d& part, const Matrix6d& whole);
+
 }  // namespace partloc

@@ -245,6 +245,7 @@ FiducialFit judge(const PreparedModel& model, const Eigen::Isometry3d& T_scan_mo
     f.observed = v.observed;
     f.seen_through = v.seen_through + v.crowded;
     f.JtJ = v.JtJ;
+    f.JtJ_facing = v.JtJ_facing;
     f.score = v.coverage * (1.0 - v.violation);
     if (v.inliers < st.min_inliers)
         f.reason = fmt("too few points on the fiducial (%.0f, needs %.0f)", v.inliers, st.min_inliers);
@@ -516,6 +517,8 @@ ScanPoseFit fit_scan_pose(const PreparedScan& scan, const std::vector<const Prep
     out.JtJ = icp.JtJ;
     // Each fiducial's share, on its own points at the result (the same distance as the last stage).
     std::size_t first = 0;
+    const Eigen::Vector3d eye = out.T_machine_scan * scan.viewpoint;
+    const double facing_cos = VerifySettings{}.facing_cos;
     for (std::size_t g = 0; g < models.size(); ++g) {
         Matrix6d H = Matrix6d::Zero();
         for (std::size_t i = first; i < first + out.points[g]; ++i) {
@@ -526,6 +529,8 @@ ScanPoseFit fit_scan_pose(const PreparedScan& scan, const std::vector<const Prep
             Vector6d J;
             J << p.cross(all.normals[k]), all.normals[k];
             H += J * J.transpose();
+            if (std::abs((eye - p).normalized().dot(all.normals[k])) >= facing_cos)
+                out.JtJ_facing += J * J.transpose();
         }
         out.JtJ_per_model.push_back(H);
         first += out.points[g];

@@ -101,6 +101,7 @@ struct FiducialFit {
     bool searched = true;
     /// Sum of J J^T over the inliers in the fiducial frame, J = [p x n; n]; information = JtJ / noise^2.
     Matrix6d JtJ = Matrix6d::Zero();
+    Matrix6d JtJ_facing = Matrix6d::Zero();  ///< Verification::JtJ_facing (the same frame)
 };
 
 struct LocalizeSettings {
@@ -158,6 +159,8 @@ struct ScanPoseFit {
     /// Each model's share of JtJ (the same frame and twist), in the models' order: how much each fiducial
     /// holds each direction of the fit, to carry a fiducial's probing error into the scan's pose.
     std::vector<Matrix6d> JtJ_per_model;
+    /// The part of JtJ (sum of JtJ_per_model) over the points the scanner faces (VerifySettings::facing_cos).
+    Matrix6d JtJ_facing = Matrix6d::Zero();
 };
 
 /// The fiducials' dense samples at their machine poses as one surface, the target of fit_scan_pose: the

@@ -386,6 +386,19 @@ ScanRegistration register_scan(const PreparedScan& scan, const std::vector<Place
                         " here: one of them moved or was probed wrong");
         }
     }
+    // A direction that only surfaces seen edge-on hold: there a sensor's smoothing and edge dropout move the
+    // points most, and the fit slides along it.
+    Matrix6d whole = top->source_fit.JtJ, facing = top->source_fit.JtJ_facing;
+    if (joint.valid) {
+        whole.setZero();
+        for (const auto& h : joint.JtJ_per_model) whole += h;
+        facing = joint.JtJ_facing;
+    }
+    const double share = least_share(facing, whole);
+    if (share < settings.min_facing_share)
+        return done("one direction is held only by surfaces seen edge-on, and the fit can slide along it" +
+                    format(" (%.1f%% of its hold from surfaces the scanner faces; needs %.1f%%)",
+                           100.0 * share, 100.0 * settings.min_facing_share));
     r.valid = true;
     r.fiducials = in_view;
     r.source = top->source;

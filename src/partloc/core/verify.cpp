@@ -79,6 +79,8 @@ void surface_support(const std::vector<Eigen::Vector3d>& pts, const Surface& mod
         Vector6d J;
         J << p.cross(n), n;
         v.JtJ.noalias() += J * J.transpose();
+        if (std::abs((eye - p).normalized().dot(n)) >= s.facing_cos)
+            v.JtJ_facing.noalias() += J * J.transpose();
         Vector6d Jc;
         Jc << (p - model.center).cross(n) / L, n;
         Jn.noalias() += Jc * Jc.transpose();

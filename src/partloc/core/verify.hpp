@@ -39,6 +39,9 @@ struct Verification {
     double spread = 0.0;
     /// Sum of J J^T over inliers, J = [p x n; n] in the model frame, twist [w, v].
     Matrix6d JtJ = Matrix6d::Zero();
+    /// The same over the inliers the scanner faces (within 75 degrees of incidence, facing_cos): a direction
+    /// that only surfaces seen edge-on hold has next to none of JtJ here (least_share).
+    Matrix6d JtJ_facing = Matrix6d::Zero();
 };
 
 /// Evaluates the pose T_model_scan of `model` against scan points near it. `viewpoint_scan` is the scanner's
