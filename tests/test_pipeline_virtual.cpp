@@ -251,8 +251,8 @@ TEST(MovedFiducial, IsNamedAndNoScanIsRegisteredWrongly) {
         const auto& r = result.scans[i];
         std::string said = r.reason;
         for (const auto& w : r.warnings) said += " " + w;
-        partloc::test::note("  %s: %s | %s\n", r.file.c_str(), r.valid ? "registered" : "rejected",
-                            said.c_str());
+        partloc::test::note("  %s: %s (scale %.6f +- %.2g) | %s\n", r.file.c_str(),
+                            r.valid ? "registered" : "rejected", r.scale, r.scale_sigma, said.c_str());
         if (said.find("C ") != std::string::npos || said.find(" C") != std::string::npos) ++named;
         if (!r.valid) continue;
         ++registered;

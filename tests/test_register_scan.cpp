@@ -279,3 +279,80 @@ TEST(RegisterScan, AFiducialHeldInOneDirectionOnlyBySurfacesSeenEdgeOnDoesNotPla
     ASSERT_TRUE(r.valid) << r.reason;
     EXPECT_LT(pose_error(r.T_machine_scan, sc.T_machine_scan).translation, 0.02);
 }
+
+namespace {
+
+// The scene's scan as a scanner whose scale is off by `error` sees it: each point moved from the centre of
+// its working volume (400 mm along its view) by that fraction.
+PreparedScan scaled_scan(double error) {
+    const Scene& sc = scene();
+    std::mt19937 rng(11);
+    open3d::geometry::PointCloud cloud;
+    view(*block_a(), sc.T_scan_a, 0.05, rng, cloud);
+    view(*block_b(), sc.T_scan_b, 0.05, rng, cloud);
+    const Eigen::Vector3d centre(0, 0, 400);
+    for (auto& p : cloud.points_) p = centre + (1.0 + error) * (p - centre);
+    return prepare_scan(cloud, {0.4, 0.05}, 3.0, Eigen::Vector3d::Zero());
+}
+
+// The largest distance between where the registration puts the fiducials' true points and where they are.
+double error_at_fiducials(const ScanRegistration& r, double error) {
+    const Scene& sc = scene();
+    const Eigen::Vector3d centre(0, 0, 400);
+    double worst = 0.0;
+    for (const auto& [mesh, T_scan] : {std::pair{block_a(), sc.T_scan_a}, std::pair{block_b(), sc.T_scan_b}})
+        for (const auto& v : mesh->vertices_) {
+            const Eigen::Vector3d truth = T_scan * v;                                // scan frame, no error
+            const Eigen::Vector3d seen = centre + (1.0 + error) * (truth - centre);  // as the scanner gave it
+            const Eigen::Vector3d placed =
+                r.T_machine_scan * (r.scale_centre + r.scale * (seen - r.scale_centre));
+            worst = std::max(worst, (placed - sc.T_machine_scan * truth).norm());
+        }
+    return worst;
+}
+
+}  // namespace
+
+TEST(RegisterScan, TwoFiducialsMeasureTheScannersScaleAndTheScanIsPlacedAsIfItHadNone) {
+    // A scale error of 0.12 % (world 2's largest) moves fiducials 130 mm apart by 0.16 mm against each other:
+    // a rigid fit across both turns to share that out, and it reaches the part. Fitted, the scale comes back
+    // to within 2e-5, and both fiducials land within 0.02 mm of where they are.
+    for (const double error : {0.0, 0.0012, -0.0012}) {
+        const ScanRegistration r = register_scan(scaled_scan(error), scene().placed(), {});
+        ASSERT_TRUE(r.valid) << error << ": " << r.reason;
+        EXPECT_NEAR(1.0 / r.scale - 1.0, error, 2e-5);
+        if (error == 0.0) {
+            EXPECT_EQ(r.scale, 1.0);  // not told from 1 (scale_significance): the rigid fit stands
+        } else {
+            EXPECT_GT(r.scale_sigma, 0.0);
+            EXPECT_LT(r.scale_sigma, 1e-4);
+        }
+        EXPECT_LT(error_at_fiducials(r, error), 0.02) << error;
+        EXPECT_GT(r.information.ldlt().vectorD().minCoeff(), 0.0);
+    }
+    // Without the scale the same scan is placed rigidly, off at the fiducials by more than its noise.
+    RegistrationSettings rigid;
+    rigid.fit_scale = false;
+    const ScanRegistration r = register_scan(scaled_scan(0.0012), scene().placed(), {}, rigid);
+    ASSERT_TRUE(r.valid) << r.reason;
+    EXPECT_EQ(r.scale, 1.0);
+    EXPECT_GT(error_at_fiducials(r, 0.0012), 0.06);
+}
+
+TEST(RegisterScan, FiducialsFurtherApartInTheScanThanAScannerCanBeOffRejectIt) {
+    // A scale beyond what the scanner can be off by (max_scale_error) is a fiducial moved along the line
+    // between them as much as a scanner out of calibration: neither may be trusted. (Far beyond it, here
+    // 0.8 %, the fiducials' own fits already disagree.)
+    RegistrationSettings tight;
+    tight.max_scale_error = 0.001;
+    const ScanRegistration r = register_scan(scaled_scan(0.0012), scene().placed(), {}, tight);
+    EXPECT_FALSE(r.valid);
+    EXPECT_EQ(
+        r.reason.rfind("fiducials A and B lie 0.12% further apart in the scan than their probed poses", 0),
+        0u)
+        << r.reason;
+    const ScanRegistration nearer = register_scan(scaled_scan(-0.0012), scene().placed(), {}, tight);
+    EXPECT_FALSE(nearer.valid);
+    EXPECT_NE(nearer.reason.find("0.12% nearer together"), std::string::npos) << nearer.reason;
+    EXPECT_FALSE(register_scan(scaled_scan(0.008), scene().placed(), {}).valid);
+}

@@ -66,7 +66,10 @@ def main():
             tol = ts["tolerance"]
             if rs and rs["status"] == "registered" and rs.get("T_machine_scan"):
                 Te, Tt = rs["T_machine_scan"], ts["T_machine_scan"]
-                err = max(math.dist(app(Te, p), app(Tt, p)) for p in ts["check_points"])
+                # the scanner's scale as partloc fitted it: T (c + scale (p - c))
+                sc, c0 = rs.get("scale") or 1.0, rs.get("scale_centre") or [0.0, 0.0, 0.0]
+                err = max(math.dist(app(Te, [c0[i] + sc * (p[i] - c0[i]) for i in range(3)]), app(Tt, p))
+                          for p in ts["check_points"])
                 rot = rot_deg(Te, Tt)
                 ok = err <= tol["translation"] and rot <= tol["rotation_deg"] and not trap
                 cls = "right" if ok else "WRONG"
@@ -108,6 +111,10 @@ def main():
                        err=None if err is None else err * k, rot=rot, tol=tol["translation"] * k,
                        msg=(rs or {}).get("message", "") if rs else "no result.json", diag=diag,
                        bias=ts["sensor"]["bias"] * k, scale=ts["sensor"]["scale_error"])
+            if rs and rs.get("scale") not in (None, 1.0) and not trap:
+                # the scale as fitted against the sensor's: p_scan = c + (1 + e) (p - c), so 1 / scale - 1 = e
+                row["fitted_scale_error"] = 1.0 / rs["scale"] - 1.0
+                row["scale_sigma"] = (rs.get("scale_sigma") or 0.0) / rs["scale"] ** 2
             rows.append(row)
             if cls == "WRONG":
                 wrongs.append(row)
@@ -159,6 +166,19 @@ def main():
             r["seed"], r["file"], r["trap"] or "-", r["fid"], r["cls"],
             "-" if r["err"] is None else "%.3f" % r["err"], "-" if r["rot"] is None else "%.4f" % r["rot"],
             r["tol"], (r["diag"] or r["msg"])[:160]))
+    print()
+    fitted = [r for r in rows if "fitted_scale_error" in r]
+    print("=== scanner scale fitted (scans registered on two fiducials or more) ===")
+    print("%-5s %-17s %-9s %10s %10s %10s %9s" % ("seed", "scan", "result", "sensor", "fitted", "off", "sigma"))
+    for r in fitted:
+        print("%-5s %-17s %-9s %10.5f %10.5f %10.5f %9.2g" % (
+            r["seed"], r["file"], r["cls"], r["scale"], r["fitted_scale_error"],
+            r["fitted_scale_error"] - r["scale"], r["scale_sigma"]))
+    if fitted:
+        offs = sorted(abs(r["fitted_scale_error"] - r["scale"]) for r in fitted)
+        raw = sorted(abs(r["scale"]) for r in fitted)
+        print("fitted scale off the sensor's: median %.5f, max %.5f, over %d scans (the sensor's own: median %.5f, max %.5f)" % (
+            offs[len(offs) // 2], offs[-1], len(offs), raw[len(raw) // 2], raw[-1]))
     print()
     print("=== cells ===")
     for c in cells:

@@ -542,6 +542,9 @@ ScanPoseFit fit_scan_pose(const PreparedScan& scan, const std::vector<const Prep
     out.JtJ_facing -= edge_on;
     out.rmse = icp.rmse;
     out.inliers = icp.inliers;
+    out.inlier_distance = inlier;
+    out.source = std::move(source);
+    out.source_normals = std::move(source_normals);
     return out;
 }
 

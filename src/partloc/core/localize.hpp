@@ -161,6 +161,10 @@ struct ScanPoseFit {
     std::vector<Matrix6d> JtJ_per_model;
     /// The part of JtJ (sum of JtJ_per_model) over the points the scanner faces (VerifySettings::facing_cos).
     Matrix6d JtJ_facing = Matrix6d::Zero();
+    /// The scan points the fit took (scan frame, in the models' order as `points` counts them) and their
+    /// normals (either sign): for a fit of the scanner's scale beside the pose (scale_fit.hpp).
+    std::vector<Eigen::Vector3d> source, source_normals;
+    double inlier_distance = 0.0;  ///< the last stage's correspondence distance
 };
 
 /// The fiducials' dense samples at their machine poses as one surface, the target of fit_scan_pose: the

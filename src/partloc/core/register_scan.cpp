@@ -5,6 +5,7 @@
 #include <optional>
 
 #include "partloc/core/format.hpp"
+#include "partloc/core/scale_fit.hpp"
 
 namespace partloc {
 
@@ -386,6 +387,36 @@ ScanRegistration register_scan(const PreparedScan& scan, const std::vector<Place
                         " here: one of them moved or was probed wrong");
         }
     }
+    // The scanner's scale, where two fiducials or more measure it through their distances (scale_fit.hpp).
+    std::optional<ScaleFit> scaled;
+    if (settings.fit_scale && joint.valid && in_view.size() >= 2) {
+        std::vector<const PreparedModel*> ms;
+        std::vector<Eigen::Isometry3d> ps;
+        for (std::size_t k : in_view) {
+            ms.push_back(fiducials[k].model);
+            ps.push_back(fiducials[k].T_machine_fiducial);
+        }
+        const Surface target = make_pose_target(ms, ps);
+        // About the points' centroid: T_machine_scan stays the rigid map that places them (scale_fit.hpp).
+        Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+        for (const auto& p : joint.source) centre += p;
+        centre /= std::max<double>(1.0, static_cast<double>(joint.source.size()));
+        ScaleFit f = fit_scale(joint.source, &joint.source_normals, target, joint.T_machine_scan, centre,
+                               joint.inlier_distance);
+        if (f.valid && std::abs(f.scale - 1.0) > settings.max_scale_error)
+            return done(
+                "fiducials " + names_of(fiducials, in_view) +
+                format(" lie %.2f%% ", 100.0 * std::abs(1.0 / f.scale - 1.0)) +
+                (f.scale < 1.0 ? "further apart" : "nearer together") +
+                " in the scan than their probed poses put them: one of them moved or was probed wrong, "
+                "or the scanner's scale is off by that much" +
+                format(" (allowed: %.2f%%)", 100.0 * settings.max_scale_error));
+        // Used where the data tell it from 1: a scale the fiducials hardly fix (two close together, seen
+        // from afar) would move the part by its own error, further than the rigid fit is off.
+        if (f.valid && std::abs(f.scale - 1.0) >
+                           settings.scale_significance * f.scale_sigma_per_noise * scan.scale.noise)
+            scaled = std::move(f);
+    }
     // A direction that only surfaces seen edge-on hold: there a sensor's smoothing and edge dropout move the
     // points most, and the fit slides along it.
     Matrix6d whole = top->source_fit.JtJ, facing = top->source_fit.JtJ_facing;
@@ -409,6 +440,14 @@ ScanRegistration register_scan(const PreparedScan& scan, const std::vector<Place
     if (joint.valid) {
         r.information = joint.JtJ / std::max(noise * noise, 1e-30);
         r.JtJ_per_fiducial = joint.JtJ_per_model;
+    }
+    if (scaled) {
+        r.T_machine_scan = scaled->T_machine_scan;
+        r.scale_centre = scaled->centre;
+        r.scale = scaled->scale;
+        r.scale_sigma = scaled->scale_sigma_per_noise * noise;
+        r.rmse = scaled->rmse;
+        r.information = scaled->JtJ_pose / std::max(noise * noise, 1e-30);  // the scale not known either
     }
     r.fits[top->source] = top->source_fit;
     // The fits say of each fiducial what the scan's status says (issue 27: "registered by A,B,C" beside a

@@ -61,6 +61,16 @@ struct RegistrationSettings {
     /// (least_share) comes from surfaces the scanner faces (VerifySettings::facing_cos). World 2: the three
     /// fits slid 0.4-0.8 mm along one axis had 0, 0 and 0.017; the least of 82 right ones 0.065.
     double min_facing_share = 0.04;
+    /// Fit the scanner's scale beside the pose where two fiducials or more fix the scan (scale_fit.hpp); a
+    /// scale off 1 by more than `max_scale_error` rejects the scan (a fiducial moved, or the scanner is far
+    /// out of calibration). World 2's sensors are off by up to 0.12 %.
+    bool fit_scale = true;
+    double max_scale_error = 0.005;
+    /// The fitted scale is used only when it differs from 1 by more than this many of its sigmas (from the
+    /// noise); else the rigid fit stands. Seed 3 of our own cells (no scale error) fitted 0.99975 +- 0.00017
+    /// on two fiducials that hardly fix it, and the part moved 0.15 mm; world 2's scales are 0.0002-0.0012
+    /// off with sigmas of 1e-5 to 1e-4.
+    double scale_significance = 3.0;
 };
 
 /// A hypothesis for the scanner's pose: one fiducial's candidate, judged against every fiducial.
@@ -92,6 +102,13 @@ struct ScanRegistration {
     /// fiducial in `fiducials`, and each one's share of JtJ in their order. Zero and empty when one
     /// fiducial's fit placed the scan without the final fit.
     Matrix6d information = Matrix6d::Zero();
+    /// The scanner's scale: a scan point p lies in the machine at T_machine_scan * (scale_centre + scale
+    /// (p - scale_centre)), the centre amid the fiducials' points (so that T_machine_scan alone still places
+    /// them as a rigid fit would). Fitted where two fiducials or more fix the scan
+    /// (RegistrationSettings::fit_scale), else 1; `information` is then the pose's with the scale unknown.
+    double scale = 1.0;
+    Eigen::Vector3d scale_centre = Eigen::Vector3d::Zero();  ///< scan frame
+    double scale_sigma = 0.0;  ///< 1 sigma of `scale` from the noise alone; 0 where not fitted
     std::vector<Matrix6d> JtJ_per_fiducial;
     std::vector<std::string> warnings;  ///< a fiducial left out (moved or probed wrong), even when not valid
     /// The fiducials this scan finds moved or probed wrong: each one not where its probed pose puts it while

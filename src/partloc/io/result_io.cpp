@@ -62,6 +62,9 @@ Json scan_json(const ScanResult& s, const Scan* scan) {
     j["score"] = number(s.score);
     j["rmse"] = number(s.rmse);
     j["T_machine_scan"] = s.valid ? matrix(s.T_machine_scan) : Json(nullptr);
+    j["scale"] = s.valid ? number(s.scale) : Json(nullptr);
+    j["scale_centre"] = s.valid ? vector3(s.scale_centre) : Json(nullptr);
+    j["scale_sigma"] = s.valid ? number(s.scale_sigma) : Json(nullptr);
     j["message"] = s.reason;
     j["warnings"] = s.warnings;
     Json axes = Json::object();

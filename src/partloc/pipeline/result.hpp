@@ -25,7 +25,12 @@ struct ScanResult {
     double rmse = 0.0;
     /// Maps scan points to the machine frame at the scan's axis values (where the fixed bodies are).
     Eigen::Isometry3d T_machine_scan = Eigen::Isometry3d::Identity();
-    std::string reason;  ///< why it was rejected; empty when registered (result.json's "message")
+    /// The scanner's scale as fitted (ScanRegistration::scale): a scan point p lies in the machine at
+    /// T_machine_scan * (scale_centre + scale (p - scale_centre)); 1 where not fitted.
+    double scale = 1.0;
+    Eigen::Vector3d scale_centre = Eigen::Vector3d::Zero();  ///< scan frame
+    double scale_sigma = 0.0;  ///< its 1 sigma from the noise alone; 0 where not fitted
+    std::string reason;        ///< why it was rejected; empty when registered (result.json's "message")
     std::vector<std::string>
         warnings;  ///< registered, but something a person should know (a fiducial left out)
     /// Information of T_machine_scan (twist [w, v] in the machine frame) from the joint fit: JtJ / noise^2.

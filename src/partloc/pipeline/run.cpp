@@ -87,7 +87,18 @@ void register_one(const Job& job, const JobPreparation& p, const Config& config,
     // The scan's workpiece points, moved to the workpiece at the reference axis position (§3.4.2).
     const Eigen::Isometry3d T_machine0_scan =
         job.machine.motion(job.workpiece.moves_with, scan.axes).inverse() * reg.T_machine_scan;
-    evidence = scan_evidence(*ps.cloud, scale, T_machine0_scan, ps.viewpoint, p.region, config.part);
+    if (reg.scale == 1.0) {
+        evidence = scan_evidence(*ps.cloud, scale, T_machine0_scan, ps.viewpoint, p.region, config.part);
+        return;
+    }
+    // The scan as the scanner's fitted scale corrects it; the scanner moves with its points, so that the
+    // rays keep their directions.
+    const auto correct = [&](const Eigen::Vector3d& q) {
+        return Eigen::Vector3d(reg.scale_centre + reg.scale * (q - reg.scale_centre));
+    };
+    open3d::geometry::PointCloud corrected = *ps.cloud;
+    for (auto& q : corrected.points_) q = correct(q);
+    evidence = scan_evidence(corrected, scale, T_machine0_scan, correct(ps.viewpoint), p.region, config.part);
 }
 
 /// Each scan's outcome, written once the part has chosen its scans.
@@ -109,6 +120,9 @@ ScanResult scan_result(const Job& job, std::size_t i, const ScanRegistration& re
     if (!reg.valid) return r;
     for (std::size_t k : reg.fiducials) r.fiducials.push_back(job.fiducials[k].name);
     r.T_machine_scan = reg.T_machine_scan;
+    r.scale = reg.scale;
+    r.scale_centre = reg.scale_centre;
+    r.scale_sigma = reg.scale_sigma;
     r.score = reg.score;
     r.rmse = reg.rmse;
     r.information = reg.information;
