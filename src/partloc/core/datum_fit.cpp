@@ -82,11 +82,7 @@ Systems accumulate(const std::vector<Eigen::Vector3d>& pts, const std::vector<Da
                 const Eigen::Vector3d q = T * pts[i];
                 const Match m = match(q, datums, max_distance);
                 if (m.datum < 0) continue;
-                double w = 1.0;
-                if (weighted) {
-                    const double u = m.r / max_distance;
-                    w = (1 - u * u) * (1 - u * u);
-                }
+                const double w = weighted ? tukey_weight(m.r, max_distance) : 1.0;
                 Vector6d J;
                 J << (q - f.c).cross(m.n) / f.L, m.n;
                 System& s = acc[static_cast<std::size_t>(m.datum)];

@@ -53,25 +53,13 @@ Normal accumulate(const std::vector<Eigen::Vector3d>& source, const Surface& tar
                 const int found =
                     approximate ? coarse_nearest(p, idx, d2) : cache.nearest(i, p, 4, max_distance, idx, d2);
                 if (found < 1) continue;
-                int k = -1;
                 double r = 0.0;
                 const Eigen::Vector3d np =
                     normals ? Eigen::Vector3d(T.linear() * (*normals)[i]) : Eigen::Vector3d::Zero();
-                for (int j = 0; j < found; ++j) {
-                    if (normals && std::abs(np.dot(target.normals[idx[j]])) < min_cos) continue;
-                    const double rj = (p - target.points[idx[j]]).dot(target.normals[idx[j]]);
-                    if (k < 0 || std::abs(rj) < std::abs(r)) {
-                        r = rj;
-                        k = idx[j];
-                    }
-                }
+                const int k = nearest_plane(target, p, normals ? &np : nullptr, min_cos, idx, found, &r);
                 if (k < 0) continue;
                 const Eigen::Vector3d& n = target.normals[k];
-                double w = 1.0;
-                if (weighted) {
-                    const double u = r / max_distance;
-                    w = (1 - u * u) * (1 - u * u);
-                }
+                const double w = weighted ? tukey_weight(r, max_distance) : 1.0;
                 Vector6d J;
                 J << p.cross(n), n;
                 // The lower triangle of w J J^T only (mirrored once the sums are in), with the products

@@ -5,6 +5,7 @@
 // reused for every scan and candidate (Open3D rebuilds the target tree on every call), and because the
 // result needs the fit's information matrix in the model frame for the verification and the uncertainty.
 #include <Eigen/Geometry>
+#include <cmath>
 #include <limits>
 #include <string>
 #include <vector>
@@ -47,6 +48,30 @@ struct IcpResult {
 IcpResult icp_point_to_plane(const std::vector<Eigen::Vector3d>& source, const Surface& target,
                              const Eigen::Isometry3d& init, const IcpSettings& settings,
                              const std::vector<Eigen::Vector3d>* source_normals = nullptr);
+
+/// Of the samples idx[0..found) near p, the one whose tangent plane lies nearest p, and p's signed distance
+/// from that plane in *r; -1 when none. At an edge the nearest sample may lie on the other face, whose plane
+/// would pull a fit sideways. With `np` (p's own normal, either sign), samples whose normal is more than
+/// acos(min_cos) from it are passed over.
+inline int nearest_plane(const Surface& target, const Eigen::Vector3d& p, const Eigen::Vector3d* np,
+                         double min_cos, const int* idx, int found, double* r) {
+    int k = -1;
+    for (int j = 0; j < found; ++j) {
+        if (np && std::abs(np->dot(target.normals[idx[j]])) < min_cos) continue;
+        const double rj = (p - target.points[idx[j]]).dot(target.normals[idx[j]]);
+        if (k < 0 || std::abs(rj) < std::abs(*r)) {
+            *r = rj;
+            k = idx[j];
+        }
+    }
+    return k;
+}
+
+/// Tukey's biweight of a residual r within the correspondence distance c.
+inline double tukey_weight(double r, double c) {
+    const double u = r / c;
+    return (1 - u * u) * (1 - u * u);
+}
 
 /// S with S J = [(p - c) x n / L, n] for J = [p x n, n]: the Jacobian of the twist [L w, v] about c, in which
 /// rotations and translations weigh alike in any units (S JtJ S^T is the system in that twist).

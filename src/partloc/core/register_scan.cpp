@@ -121,13 +121,19 @@ struct Search {
         return out;
     }
 
-    ScanPoseFit joint_fit(const std::vector<std::size_t>& ks, const Eigen::Isometry3d& init) const {
-        std::vector<const PreparedModel*> ms;
-        std::vector<Eigen::Isometry3d> ps;
+    /// Fiducials ks's models and poses.
+    void subset(const std::vector<std::size_t>& ks, std::vector<const PreparedModel*>& ms,
+                std::vector<Eigen::Isometry3d>& ps) const {
         for (std::size_t k : ks) {
             ms.push_back(models[k]);
             ps.push_back(poses[k]);
         }
+    }
+
+    ScanPoseFit joint_fit(const std::vector<std::size_t>& ks, const Eigen::Isometry3d& init) const {
+        std::vector<const PreparedModel*> ms;
+        std::vector<Eigen::Isometry3d> ps;
+        subset(ks, ms, ps);
         const bool all = ks.size() == models.size() && all_target;  // ks keeps the fiducials' order
         return fit_scan_pose(scan, ms, ps, init, localize, 0.0, all ? &*all_target : nullptr);
     }
@@ -392,10 +398,7 @@ ScanRegistration register_scan(const PreparedScan& scan, const std::vector<Place
     if (settings.fit_scale && joint.valid && in_view.size() >= 2) {
         std::vector<const PreparedModel*> ms;
         std::vector<Eigen::Isometry3d> ps;
-        for (std::size_t k : in_view) {
-            ms.push_back(fiducials[k].model);
-            ps.push_back(fiducials[k].T_machine_fiducial);
-        }
+        search.subset(in_view, ms, ps);
         const Surface target = make_pose_target(ms, ps);
         // About the points' centroid: T_machine_scan stays the rigid map that places them (scale_fit.hpp).
         Eigen::Vector3d centre = Eigen::Vector3d::Zero();

@@ -22,7 +22,7 @@ struct System {
 System accumulate(const std::vector<Eigen::Vector3d>& source, const std::vector<Eigen::Vector3d>* normals,
                   const Surface& target, const Eigen::Isometry3d& T, double s, const Eigen::Vector3d& c,
                   double max_distance, bool weighted) {
-    const double min_cos = std::cos(30.0 * M_PI / 180.0);
+    const double min_cos = std::cos(IcpSettings{}.max_normal_angle_deg * M_PI / 180.0);  // as the rigid fit
     const Eigen::Vector3d at = T * c;
     System sys;
     int idx[4];
@@ -33,23 +33,11 @@ System accumulate(const std::vector<Eigen::Vector3d>& source, const std::vector<
         if (found < 1) continue;
         const Eigen::Vector3d np =
             normals ? Eigen::Vector3d(T.linear() * (*normals)[i]) : Eigen::Vector3d::Zero();
-        int k = -1;
         double r = 0.0;
-        for (int j = 0; j < found; ++j) {  // the nearest tangent plane among them (icp.cpp)
-            if (normals && std::abs(np.dot(target.normals[idx[j]])) < min_cos) continue;
-            const double rj = (p - target.points[idx[j]]).dot(target.normals[idx[j]]);
-            if (k < 0 || std::abs(rj) < std::abs(r)) {
-                r = rj;
-                k = idx[j];
-            }
-        }
+        const int k = nearest_plane(target, p, normals ? &np : nullptr, min_cos, idx, found, &r);
         if (k < 0) continue;
         const Eigen::Vector3d& n = target.normals[k];
-        double w = 1.0;
-        if (weighted) {
-            const double u = r / max_distance;
-            w = (1 - u * u) * (1 - u * u);
-        }
+        const double w = weighted ? tukey_weight(r, max_distance) : 1.0;
         Vector7d J;
         J << p.cross(n), n, n.dot(p - at);
         sys.A.noalias() += w * J * J.transpose();

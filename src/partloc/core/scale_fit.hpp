@@ -19,7 +19,9 @@ namespace partloc {
 
 struct ScaleFitSettings {
     int max_iterations = 20;
-    double min_step = 1e-7;  ///< stop when the update moves no point by more than this fraction of the reach
+    /// Stop when the step is smaller: rotation (radians) + translation and scale's move at the target
+    /// (both over the target's distance from the centre of scale).
+    double min_step = 1e-7;
 };
 
 /// A scan's pose and scale: machine point = T_machine_scan * (centre + scale (p - centre)) for a scan point
@@ -44,7 +46,8 @@ struct ScaleFit {
 
 /// Fits scale and pose of `source` (scan points, with their normals of either sign, or none) onto `target`
 /// (machine frame) from T_machine_scan `init` at scale 1, with correspondences within `max_distance`
-/// (Tukey-weighted) whose normals agree within 30 degrees, the scale about `centre` (scan frame).
+/// (Tukey-weighted) whose normals agree as in the rigid fit (IcpSettings::max_normal_angle_deg), the scale
+/// about `centre` (scan frame).
 ScaleFit fit_scale(const std::vector<Eigen::Vector3d>& source, const std::vector<Eigen::Vector3d>* normals,
                    const Surface& target, const Eigen::Isometry3d& init, const Eigen::Vector3d& centre,
                    double max_distance, const ScaleFitSettings& settings = {});
