@@ -7,6 +7,7 @@
 #include <embree3/rtcore.h>
 
 #include <Eigen/Dense>
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdint>
@@ -289,6 +290,50 @@ struct Body {
     Isometry3d T = Isometry3d::Identity();  // machine <- body, axes at 0
     int fiducial = -1;
 };
+
+// ---------------------------------------------------------------- bodies must not interpenetrate
+// Every body stands on the pallet, so two bodies meet wherever their footprints (convex hulls of their
+// vertices seen from above) overlap. An earlier version placed fiducials 120-160 mm from the part without
+// this check: in half the vise cells a fiducial stood partly inside the vise body, and partloc rightly found
+// material where the model says there is air, even at the true pose.
+std::vector<Vector2d> footprint(const Body& b) {
+    std::vector<Vector2d> p;
+    for (const auto& v : b.mesh.v) p.push_back((b.T * v).head<2>());
+    std::sort(p.begin(), p.end(), [](const Vector2d& a, const Vector2d& c) {
+        return a.x() < c.x() || (a.x() == c.x() && a.y() < c.y());
+    });
+    if (p.size() < 3) return p;
+    std::vector<Vector2d> h(2 * p.size());  // Andrew's monotone chain, counter-clockwise
+    std::size_t k = 0;
+    const auto turn = [](const Vector2d& o, const Vector2d& a, const Vector2d& c) {
+        return (a - o).x() * (c - o).y() - (a - o).y() * (c - o).x();
+    };
+    for (std::size_t i = 0; i < p.size(); ++i) {
+        while (k >= 2 && turn(h[k - 2], h[k - 1], p[i]) <= 0) --k;
+        h[k++] = p[i];
+    }
+    for (std::size_t i = p.size() - 1, t = k + 1; i > 0; --i) {
+        while (k >= t && turn(h[k - 2], h[k - 1], p[i - 1]) <= 0) --k;
+        h[k++] = p[i - 1];
+    }
+    h.resize(k - 1);
+    return h;
+}
+
+/// Whether two convex footprints come closer than `gap` (separating axes: the edge normals of both).
+bool footprints_meet(const std::vector<Vector2d>& a, const std::vector<Vector2d>& b, double gap) {
+    for (const auto* poly : {&a, &b})
+        for (std::size_t i = 0; i < poly->size(); ++i) {
+            const Vector2d e = (*poly)[(i + 1) % poly->size()] - (*poly)[i];
+            if (e.norm() < 1e-9) continue;
+            const Vector2d n = Vector2d(e.y(), -e.x()).normalized();
+            double a0 = 1e300, a1 = -1e300, b0 = 1e300, b1 = -1e300;
+            for (const auto& q : a) a0 = std::min(a0, q.dot(n)), a1 = std::max(a1, q.dot(n));
+            for (const auto& q : b) b0 = std::min(b0, q.dot(n)), b1 = std::max(b1, q.dot(n));
+            if (a1 + gap <= b0 || b1 + gap <= a0) return false;
+        }
+    return true;
+}
 
 struct RayScene {
     RTCDevice dev;
@@ -628,40 +673,54 @@ Cell build_cell(uint64_t seed, bool small) {
         double a = deg(a0 + 360.0 / nsect * s + r.uni(-12, 12));
         return Vector3d(centre.x() + rad * std::cos(a), centre.y() + rad * std::sin(a), 0);
     };
+    // A body goes in its sector at a radius drawn from [r0, r1], pushed out 5 mm and drawn again (angle
+    // and turn too) while its footprint comes within 5 mm of a body already there or leaves the pallet.
+    auto place_body = [&](Body b, int s, double r0, double r1, const Isometry3d& offset) {
+        constexpr int kTries = 40;
+        for (int t = 0; t < kTries; ++t) {
+            const Vector3d p = place(s, r.uni(r0, r1) + 5.0 * t);
+            b.T = pose(p, 0, 0, r.uni(-180, 180)) * offset;
+            const auto fb = footprint(b);
+            bool free = std::all_of(fb.begin(), fb.end(), [](const Vector2d& q) {
+                return std::abs(q.x()) < 255.0 && std::abs(q.y()) < 195.0;
+            });
+            for (std::size_t o = 0; free && o < c.bodies.size(); ++o)
+                free = c.bodies[o].kind == "pallet" || !footprints_meet(fb, footprint(c.bodies[o]), 5.0);
+            if (free) break;
+            if (t + 1 == kTries)
+                std::fprintf(stderr, "world2: %s placed where it meets another body\n", b.name.c_str());
+        }
+        c.bodies.push_back(std::move(b));
+    };
     for (int k = 0; k < nf; ++k) {
         std::string d;
         Mesh m = fam[size_t(k)] == 0   ? fid_stepped(r, d)
                  : fam[size_t(k)] == 1 ? fid_notched(r, d)
                  : fam[size_t(k)] == 2 ? fid_pyramid(r, d)
                                        : fid_multibody(r, d);
-        Vector3d p = place(sect[size_t(k)], r.uni(120, 160));
-        Isometry3d T = pose(p, 0, 0, r.uni(-180, 180)) * pose(Vector3d(-25, -20, 0), 0, 0, 0);
-        c.bodies.push_back({std::string(1, char('A' + k)), "fiducial", m, T, k});
+        place_body({std::string(1, char('A' + k)), "fiducial", m, Isometry3d::Identity(), k}, sect[size_t(k)],
+                   120, 160, pose(Vector3d(-25, -20, 0), 0, 0, 0));
         c.fid_desc.push_back(d);
     }
     int next = nf;
     {  // a second part: a plate with a pocket-like step
         std::vector<Vector2d> poly = {{0, 0}, {70, 0}, {70, 25}, {45, 25}, {45, 50}, {0, 50}};
         Mesh m = prism(poly, 0, r.uni(15, 30));
-        c.bodies.push_back({"second_part", "clutter", m,
-                            pose(place(sect[size_t(next++)], r.uni(130, 170)), 0, 0, r.uni(-180, 180)) *
-                                pose(Vector3d(-35, -25, 0), 0, 0, 0),
-                            -1});
+        place_body({"second_part", "clutter", m, Isometry3d::Identity(), -1}, sect[size_t(next++)], 130, 170,
+                   pose(Vector3d(-35, -25, 0), 0, 0, 0));
     }
     if (next < nsect) {  // an angle plate fixture
         Mesh m = box({0, 0, 0}, {60, 60, 12});
         m.add(box({0, 0, 0}, {12, 60, r.uni(50, 80)}));
-        c.bodies.push_back({"angle_plate", "clutter", m,
-                            pose(place(sect[size_t(next++)], r.uni(140, 175)), 0, 0, r.uni(-180, 180)) *
-                                pose(Vector3d(-30, -30, 0), 0, 0, 0),
-                            -1});
+        place_body({"angle_plate", "clutter", m, Isometry3d::Identity(), -1}, sect[size_t(next++)], 140, 175,
+                   pose(Vector3d(-30, -30, 0), 0, 0, 0));
     }
     bool mirror_trap = r.chance(0.5) && next < nsect;
     if (mirror_trap) {  // a mirrored copy of fiducial A: same faces, the other hand
         const Body& A = c.bodies[2 + (vise ? 1 : 2)];
         Mesh m = A.mesh.mirrored_x();
-        c.bodies.push_back({"mirror_of_A", "lookalike", m,
-                            pose(place(sect[size_t(next++)], r.uni(140, 170)), 0, 0, r.uni(-180, 180)), -1});
+        place_body({"mirror_of_A", "lookalike", m, Isometry3d::Identity(), -1}, sect[size_t(next++)], 140,
+                   170, Isometry3d::Identity());
     }
     // ---- scans
     c.spacing = r.uni(0.3, 0.5);
@@ -954,6 +1013,20 @@ int selftest() {
             same = c.scans[i].out.pts.size() == c2.scans[i].out.pts.size() &&
                    (c.scans[i].out.pts.empty() || c.scans[i].out.pts.back() == c2.scans[i].out.pts.back());
         check(same, "seed " + std::to_string(seed) + ": the same seed gives the same cell");
+        int meet = 0;  // bodies placed around the part (not the part and what holds it) touch nothing
+        for (std::size_t a = 0; a < c.bodies.size(); ++a)
+            for (std::size_t b = a + 1; b < c.bodies.size(); ++b) {
+                const auto& A = c.bodies[a];
+                const auto& B = c.bodies[b];
+                const auto placed = [](const Body& x) {
+                    return x.kind == "fiducial" || x.kind == "lookalike" || x.name == "second_part" ||
+                           x.name == "angle_plate";
+                };
+                if (A.kind == "pallet" || B.kind == "pallet" || !(placed(A) || placed(B))) continue;
+                meet += footprints_meet(footprint(A), footprint(B), 0.0);
+            }
+        check(meet == 0, "seed " + std::to_string(seed) + ": no two bodies interpenetrate (" +
+                             std::to_string(meet) + " pairs of footprints meet)");
         int traps = 0;
         for (auto& s : c.scans) {
             if (!s.trap.empty()) {

@@ -1,0 +1,195 @@
+// partloc_world2_diagnose CELL...: where the global search loses a fiducial's true pose (issue 25, item 2).
+// For every scan of a world-2 cell (CELL/job.yaml and CELL/truth.json, as world2_trials.sh --keep leaves
+// them) and every fiducial the truth says it sees with at least --min-points points, one line:
+//   ppf      the rank (0 = most votes) of the first global-fit candidate within --near-deg and
+//            --near-samplings (at the model's centre) of the true pose, or "-" when none is;
+//   truth    the fine fit and verification started at the true pose: "ok" or its reason, i.e. whether the
+//            checks can accept the true pose at all;
+//   fits     the fine-fitted candidates (fit_candidates): "right" (a valid one within 0.5 mm and 0.5 deg of
+//            the truth), "wrong" (a valid one away from it comes first) or the best one's reason.
+// Unlike the generator, this tool links partloc: it asks the library's steps one at a time.
+#include <Eigen/Geometry>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "partloc/core/cloud_stats.hpp"
+#include "partloc/core/localize.hpp"
+#include "partloc/core/ppf.hpp"
+#include "partloc/core/verify.hpp"
+#include "partloc/io/job_io.hpp"
+#include "partloc/pipeline/config.hpp"
+#include "partloc/pipeline/run.hpp"
+
+namespace {
+
+Eigen::Isometry3d matrix_of(const nlohmann::json& j) {
+    Eigen::Matrix4d m;
+    for (int r = 0; r < 4; ++r)
+        for (int c = 0; c < 4; ++c) m(r, c) = j.at(r).at(c).get<double>();
+    Eigen::Isometry3d T;
+    T.matrix() = m;
+    return T;
+}
+
+struct Offset {
+    double at_centre = 0.0;  ///< distance of the model's centre under the two poses (job units)
+    double deg = 0.0;
+};
+
+Offset offset(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b, const Eigen::Vector3d& centre) {
+    const Eigen::AngleAxisd d(a.linear() * b.linear().transpose());
+    return {(a * centre - b * centre).norm(), d.angle() * 180.0 / M_PI};
+}
+
+std::string short_reason(const std::string& r) { return r.substr(0, std::min<std::size_t>(r.size(), 60)); }
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    using namespace partloc;
+    std::size_t min_points = 3000;
+    bool verbose = false;
+    std::string dump;
+    int max_candidates = 0, stride = 0;  // 0: the model's own PPF settings
+    double near_deg = 15.0, near_samplings = 3.0;
+    std::vector<std::string> cells;
+    for (int i = 1; i < argc; ++i) {
+        const std::string a = argv[i];
+        if (a == "--max-candidates" && i + 1 < argc)
+            max_candidates = std::stoi(argv[++i]);
+        else if (a == "--stride" && i + 1 < argc)
+            stride = std::stoi(argv[++i]);
+        else if (a == "--dump" && i + 1 < argc)
+            dump = argv[++i];
+        else if (a == "--verbose")
+            verbose = true;
+        else if (a == "--min-points" && i + 1 < argc)
+            min_points = std::stoul(argv[++i]);
+        else if (a == "--near-deg" && i + 1 < argc)
+            near_deg = std::stod(argv[++i]);
+        else if (a == "--near-samplings" && i + 1 < argc)
+            near_samplings = std::stod(argv[++i]);
+        else
+            cells.push_back(a);
+    }
+    if (cells.empty()) {
+        std::fprintf(stderr,
+                     "usage: partloc_world2_diagnose [--min-points N] [--near-deg D] "
+                     "[--near-samplings S] CELL...\n");
+        return 2;
+    }
+    std::printf("%-30s %-4s %6s %5s %9s  %-34s %s\n", "cell scan", "fid", "points", "ppf", "votes", "truth",
+                "fits");
+    for (const auto& cell : cells) {
+        const std::filesystem::path dir(cell);
+        const Job job = io::load_job(dir / "job.yaml");
+        nlohmann::json truth;
+        std::ifstream(dir / "truth.json") >> truth;
+        RunSettings rs;
+        const JobPreparation prep = prepare_job(job, rs);
+        const LocalizeSettings& st = rs.config.candidates;
+        for (std::size_t i = 0; i < job.scans.size(); ++i) {
+            const Scan& scan = job.scans[i];
+            const nlohmann::json* ts = nullptr;
+            for (const auto& t : truth.at("scans"))
+                if (t.at("file").get<std::string>() == scan.file) ts = &t;
+            if (!ts || !(*ts).at("trap").is_null()) continue;
+            const Eigen::Isometry3d T_machine_scan = matrix_of(ts->at("T_machine_scan"));
+            const Scale& scale = prep.scales[i];
+            const Eigen::Vector3d viewpoint = estimate_viewpoint(*scan.points, scale.spacing);
+            const PreparedScan ps = prepare_scan(*scan.points, scale, prep.sampling, viewpoint);
+            for (std::size_t k = 0; k < job.fiducials.size(); ++k) {
+                const auto& f = job.fiducials[k];
+                const auto& fp = ts->at("fiducial_points");
+                const std::size_t n = fp.contains(f.name) ? fp.at(f.name).get<std::size_t>() : 0;
+                if (n < min_points) continue;
+                const PreparedModel& m = prep.models[k];
+                const Eigen::Isometry3d T_true =
+                    T_machine_scan.inverse() * fiducial_at(job.machine, f, scan.axes);
+                // The global fit as the run makes it, or with other settings (--max-candidates, --stride).
+                std::vector<PoseCandidate> cands;
+                if (max_candidates > 0 || stride > 0) {
+                    PpfSettings s2 = m.ppf->settings();
+                    if (max_candidates > 0) s2.max_candidates = max_candidates;
+                    if (stride > 0) s2.reference_stride = stride;
+                    const PpfModel other(m.ppf->points(), m.ppf->normals(), s2);
+                    cands = ppf_detect(other, ps.coarse_points, ps.coarse_normals);
+                } else {
+                    cands = ppf_detect(*m.ppf, ps.coarse_points, ps.coarse_normals);
+                }
+                int rank = -1;
+                for (std::size_t c = 0; c < cands.size() && rank < 0; ++c) {
+                    const Offset o = offset(cands[c].T_scene_model, T_true, m.dense.center);
+                    if (o.deg < near_deg && o.at_centre < near_samplings * m.sampling)
+                        rank = static_cast<int>(c);
+                }
+                if (verbose) {
+                    // The verification at the true pose itself, bin by bin (thresholds as localize.cpp's).
+                    const double noise = std::max(scale.noise, 1e-9), ms = m.dense.spacing;
+                    VerifySettings vs;
+                    vs.inlier_distance = std::sqrt(9.0 * noise * noise + 0.5 * ms * ms);
+                    vs.bin_size = 2.0 * std::max(ms, scale.spacing);
+                    std::vector<int> idx;
+                    ps.grid->within(T_true * m.dense.center, m.dense.diameter / 2.0 + 2.0 * m.sampling, idx);
+                    std::vector<Eigen::Vector3d> local;
+                    for (int j : idx) local.push_back(ps.cloud->points_[j]);
+                    const Verification v = verify_pose(local, m.dense, T_true.inverse(), ps.viewpoint, vs);
+                    if (!dump.empty()) {
+                        // The points near the fiducial and its samples, model frame, for a look by eye.
+                        std::ofstream o(dump + "_" + dir.filename().string() + "_" + std::to_string(i) + "_" +
+                                        f.name + ".xyz");
+                        for (const auto& q : local) {
+                            const Eigen::Vector3d p = T_true.inverse() * q;
+                            o << p.x() << ' ' << p.y() << ' ' << p.z() << " 0\n";
+                        }
+                        for (const auto& q : m.dense.points)
+                            o << q.x() << ' ' << q.y() << ' ' << q.z() << " 1\n";
+                        const Eigen::Vector3d e = T_true.inverse() * ps.viewpoint;
+                        o << e.x() << ' ' << e.y() << ' ' << e.z() << " 2\n";
+                    }
+                    std::printf(
+                        "  at truth: inliers %zu rmse %.3f observed %zu seen_through %zu crowded %zu "
+                        "occluded %zu missing %zu overflow %zu; noise %.3f inlier distance %.3f "
+                        "viewpoint %.1f %.1f %.1f\n",
+                        v.inliers, v.rmse, v.observed, v.seen_through, v.crowded, v.occluded, v.missing,
+                        v.overflow, noise, vs.inlier_distance, ps.viewpoint.x(), ps.viewpoint.y(),
+                        ps.viewpoint.z());
+                }
+                const auto at_truth = fit_candidates(ps, m, st, {PoseCandidate{T_true, 1.0}});
+                std::string truth_says = at_truth.empty() ? "no fit" : at_truth.front().valid ? "ok" : "";
+                if (!at_truth.empty() && !at_truth.front().valid)
+                    truth_says = short_reason(at_truth.front().reason);
+                const auto fits = fit_candidates(ps, m, st, cands);
+                std::string fits_say = "none";
+                if (!fits.empty()) {
+                    const FiducialFit& best = fits.front();
+                    const Offset o = offset(best.T_scan_fiducial, T_true, m.dense.center);
+                    const bool near = o.at_centre < 0.5 && o.deg < 0.5;
+                    char buf[200];
+                    if (best.valid)
+                        std::snprintf(buf, sizeof buf, "%s (%.2f, %.2f deg)", near ? "right" : "wrong",
+                                      o.at_centre, o.deg);
+                    else
+                        std::snprintf(buf, sizeof buf, "%s (%.1f, %.1f deg): %s", near ? "near" : "far",
+                                      o.at_centre, o.deg, short_reason(best.reason).c_str());
+                    fits_say = buf;
+                }
+                std::printf(
+                    "%-30s %-4s %6zu %5s %4.0f/%4.0f  %-34s %s\n",
+                    (dir.filename().string() + " " + std::filesystem::path(scan.file).filename().string())
+                        .c_str(),
+                    f.name.c_str(), n, rank < 0 ? "-" : std::to_string(rank).c_str(),
+                    rank < 0 ? 0.0 : cands[static_cast<std::size_t>(rank)].votes,
+                    cands.empty() ? 0.0 : cands.front().votes, truth_says.substr(0, 34).c_str(),
+                    fits_say.c_str());
+                std::fflush(stdout);
+            }
+        }
+    }
+    return 0;
+}
