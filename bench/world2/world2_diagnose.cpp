@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "partloc/core/cloud_stats.hpp"
+#include "partloc/core/icp.hpp"
 #include "partloc/core/localize.hpp"
 #include "partloc/core/ppf.hpp"
 #include "partloc/core/verify.hpp"
@@ -159,6 +160,35 @@ int main(int argc, char** argv) {
                         v.inliers, v.rmse, v.observed, v.seen_through, v.crowded, v.occluded, v.missing,
                         v.overflow, noise, vs.inlier_distance, ps.viewpoint.x(), ps.viewpoint.y(),
                         ps.viewpoint.z());
+                }
+                if (verbose) {
+                    // The screening's coarse fit from the true pose, as fit_candidates makes it.
+                    IcpSettings coarse;
+                    coarse.max_distances = {2.0 * m.sampling, 1.0 * m.sampling};
+                    coarse.max_iterations = 10;
+                    coarse.approximate_from = m.sampling;
+                    std::vector<int> idx;
+                    ps.sparse_grid->within(T_true * m.dense.center, m.dense.diameter / 2.0 + 2.0 * m.sampling,
+                                           idx);
+                    std::vector<Eigen::Vector3d> local;
+                    for (int j : idx) local.push_back(ps.sparse->points_[j]);
+                    std::vector<Eigen::Vector3d> sub;
+                    const std::size_t k = std::max<std::size_t>(1, (local.size() + 1499) / 1500);
+                    for (std::size_t j = 0; j < local.size(); j += k) sub.push_back(local[j]);
+                    for (int stages = 1; stages <= 2; ++stages) {
+                        IcpSettings c = coarse;
+                        c.max_distances.resize(stages);
+                        const IcpResult r = icp_point_to_plane(sub, m.dense, T_true.inverse(), c);
+                        const Offset o = offset(r.T_target_source.inverse(), T_true, m.dense.center);
+                        std::printf("  coarse from truth, %d stage(s): %.2f mm %.2f deg\n", stages,
+                                    o.at_centre, o.deg);
+                    }
+                    IcpSettings fine;
+                    fine.max_distances = {0.5 * m.sampling, 0.25 * m.sampling};
+                    fine.max_iterations = 15;
+                    const IcpResult r = icp_point_to_plane(sub, m.dense, T_true.inverse(), fine);
+                    const Offset o = offset(r.T_target_source.inverse(), T_true, m.dense.center);
+                    std::printf("  fine from truth: %.2f mm %.2f deg\n", o.at_centre, o.deg);
                 }
                 const auto at_truth = fit_candidates(ps, m, st, {PoseCandidate{T_true, 1.0}});
                 std::string truth_says = at_truth.empty() ? "no fit" : at_truth.front().valid ? "ok" : "";
