@@ -130,11 +130,8 @@ int main(int argc, char** argv) {
                         rank = static_cast<int>(c);
                 }
                 if (verbose) {
-                    // The verification at the true pose itself, bin by bin (thresholds as localize.cpp's).
-                    const double noise = std::max(scale.noise, 1e-9), ms = m.dense.spacing;
-                    VerifySettings vs;
-                    vs.inlier_distance = std::sqrt(9.0 * noise * noise + 0.5 * ms * ms);
-                    vs.bin_size = 2.0 * std::max(ms, scale.spacing);
+                    // The verification at the true pose itself, bin by bin, with the run's tolerances.
+                    const VerifySettings vs = verify_settings(ps, m);
                     std::vector<int> idx;
                     ps.grid->within(T_true * m.dense.center, m.dense.diameter / 2.0 + 2.0 * m.sampling, idx);
                     std::vector<Eigen::Vector3d> local;
@@ -158,23 +155,22 @@ int main(int argc, char** argv) {
                         "occluded %zu missing %zu overflow %zu; noise %.3f inlier distance %.3f "
                         "viewpoint %.1f %.1f %.1f\n",
                         v.inliers, v.rmse, v.observed, v.seen_through, v.crowded, v.occluded, v.missing,
-                        v.overflow, noise, vs.inlier_distance, ps.viewpoint.x(), ps.viewpoint.y(),
+                        v.overflow, scale.noise, vs.inlier_distance, ps.viewpoint.x(), ps.viewpoint.y(),
                         ps.viewpoint.z());
-                }
-                if (verbose) {
-                    // The screening's coarse fit from the true pose, as fit_candidates makes it.
+                    // The screening's coarse fit from the true pose, with fit_candidates' stages (copied:
+                    // they are local to it).
                     IcpSettings coarse;
                     coarse.max_distances = {2.0 * m.sampling, 1.0 * m.sampling};
                     coarse.max_iterations = 10;
                     coarse.approximate_from = m.sampling;
-                    std::vector<int> idx;
+                    idx.clear();
                     ps.sparse_grid->within(T_true * m.dense.center, m.dense.diameter / 2.0 + 2.0 * m.sampling,
                                            idx);
-                    std::vector<Eigen::Vector3d> local;
-                    for (int j : idx) local.push_back(ps.sparse->points_[j]);
                     std::vector<Eigen::Vector3d> sub;
-                    const std::size_t k = std::max<std::size_t>(1, (local.size() + 1499) / 1500);
-                    for (std::size_t j = 0; j < local.size(); j += k) sub.push_back(local[j]);
+                    const std::size_t every =
+                        std::max<std::size_t>(1, (idx.size() + st.screen_points - 1) / st.screen_points);
+                    for (std::size_t j = 0; j < idx.size(); j += every)
+                        sub.push_back(ps.sparse->points_[static_cast<std::size_t>(idx[j])]);
                     for (int stages = 1; stages <= 2; ++stages) {
                         IcpSettings c = coarse;
                         c.max_distances.resize(stages);

@@ -141,6 +141,14 @@ PreparedModel prepare_model(const std::string& name, const open3d::geometry::Tri
 
 double support(const FiducialFit& f) { return static_cast<double>(f.inliers) * f.score; }
 
+VerifySettings verify_settings(const PreparedScan& scan, const PreparedModel& model) {
+    VerifySettings vs;
+    const double noise = std::max(scan.scale.noise, 1e-9), ms = model.dense.spacing;
+    vs.inlier_distance = std::sqrt(9.0 * noise * noise + 0.5 * ms * ms);
+    vs.bin_size = 2.0 * std::max(ms, scan.scale.spacing);
+    return vs;
+}
+
 namespace {
 
 struct Thresholds {
@@ -153,9 +161,7 @@ Thresholds thresholds(const PreparedScan& scan, const PreparedModel& model) {
     Thresholds t;
     const double s = model.sampling;
     t.noise = std::max(scan.scale.noise, 1e-9);
-    const double ms = model.dense.spacing;
-    t.vs.inlier_distance = std::sqrt(9.0 * t.noise * t.noise + 0.5 * ms * ms);
-    t.vs.bin_size = 2.0 * std::max(ms, scan.scale.spacing);
+    t.vs = verify_settings(scan, model);
     t.is.max_distances = {2.0 * s, 1.0 * s, 0.5 * s, std::max(t.vs.inlier_distance, 0.2 * s)};
     return t;
 }

@@ -142,6 +142,10 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
                                         const LocalizeSettings& settings,
                                         const std::vector<PoseCandidate>& candidates);
 
+/// The verification's tolerances for `model` in `scan`: a point is on the surface within 3 noise sigmas and
+/// the model's sampling; ray bins twice the coarser of the model's and the scan's spacing.
+VerifySettings verify_settings(const PreparedScan& scan, const PreparedModel& model);
+
 /// Judges `model` at a given pose in the scan (no fitting): where another fiducial says it must be.
 FiducialFit evaluate_model(const PreparedScan& scan, const PreparedModel& model,
                            const Eigen::Isometry3d& T_scan_model, const LocalizeSettings& settings);
