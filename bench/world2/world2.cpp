@@ -416,11 +416,40 @@ struct Sensor {  // one scan's scanner
     double max_incidence = 78;   // degrees
     double work_distance = 400;  // the scale error is about the point this far along the optical axis
                                  // (the centre of the calibrated volume); the scan frame is the camera's
+
+    // The consumer depth camera (--sensor depthcam, render_depthcam): its errors are systematic and larger
+    // than its local scatter, which is what real RealSense/Kinect-class scans of small parts show.
+    bool depthcam = false;
+    double bias_field = 0.0;  // mm: largest |low-frequency bias| over the image, added to `bias`
+    struct Cosine {           // one term of the field: w cos(2 pi (fu u/W + fv v/H) + phase)
+        double w = 0, fu = 0, fv = 0, phase = 0;
+    };
+    std::array<Cosine, 3> field{};  // normalised so that max |sum| over the image is 1
+    int smooth_px = 7;              // pixels: side of the edge-blurring window (5, 7 or 9)
+    double smooth_jump = 5.0;       // mm: the window mixes depths within this of the pixel's own
+    double fly_p = 0.4;             // share of the pixels at a larger depth jump given a mixed depth
+    double multipath = 1.0;         // mm: extra depth at an inside corner's crease
+    double multipath_radius = 4.0;  // mm: how far from the crease the extra depth falls to zero
 };
+
+/// The depth camera's bias at pixel (u, v) (mm, positive: seen too far) and its gradient over the image
+/// (mm per pixel).
+double bias_at(const Sensor& s, double u, double v, Vector2d* grad = nullptr) {
+    double b = s.bias;
+    Vector2d g = Vector2d::Zero();
+    for (const auto& c : s.field) {
+        const double a = 2 * kPi * (c.fu * u / s.W + c.fv * v / s.H) + c.phase;
+        b += s.bias_field * c.w * std::cos(a);
+        g -= s.bias_field * c.w * std::sin(a) * 2 * kPi * Vector2d(c.fu / s.W, c.fv / s.H);
+    }
+    if (grad) *grad = g;
+    return b;
+}
 
 struct ScanOut {
     std::vector<Vector3d> pts;  // scan frame, mm
-    std::vector<int> body;      // per point: body index, -1 for an outlier
+    std::vector<int> body;      // per point: body index, -1 for an outlier (or a flying pixel)
+    std::vector<int> pixel;     // per point: v * W + u (depthcam only: where its bias field is read)
     Isometry3d T_machine_scan;
     Isometry3d T_machine_cam;
     int shadowed = 0;  // camera hits the projector does not see
@@ -440,27 +469,35 @@ Isometry3d look_at(const Vector3d& eye, const Vector3d& target, Rng& r) {
     return T;
 }
 
-ScanOut render(const RayScene& rs, const Isometry3d& T_cam, const Sensor& s, Rng& r) {
-    ScanOut out;
-    out.T_machine_cam = T_cam;
+// The camera's image: per pixel the ray, and where both the camera and the projector see a point its
+// distance along the ray (-1 elsewhere). Draws no random number.
+struct Image {
+    std::vector<double> depth, inc;  // mm along the ray; |cos| of the incidence
+    std::vector<int> body;
+    std::vector<Vector3d> dirs;  // machine frame, unit
+    std::vector<char> hit;       // the camera ray hits something, lit or not
+    std::vector<Vector3d> X, N;  // the first hit and its normal (towards the camera), where hit
+};
+Image cast_image(const RayScene& rs, const Isometry3d& T_cam, const Sensor& s, ScanOut& out) {
     const Vector3d C = T_cam.translation();
     const Matrix3d R = T_cam.linear();
     const Vector3d P = C + R * Vector3d(s.baseline, 0.08 * s.baseline, 0);  // projector
-    const int n = s.W * s.H;
-    std::vector<double> depth(size_t(n), -1.0), inc(size_t(n), 0.0);
-    std::vector<int> body(size_t(n), -1);
-    std::vector<Vector3d> dirs(static_cast<size_t>(n));
+    const size_t n = size_t(s.W * s.H);
+    Image im;
+    im.depth.assign(n, -1.0), im.inc.assign(n, 0.0), im.body.assign(n, -1), im.dirs.resize(n);
+    im.hit.assign(n, 0), im.X.resize(n), im.N.resize(n);
     for (int v = 0; v < s.H; ++v)
         for (int u = 0; u < s.W; ++u) {
             size_t i = size_t(v * s.W + u);
             Vector3d d =
                 R * Vector3d((u + 0.5 - s.W / 2.0) / s.f, (v + 0.5 - s.H / 2.0) / s.f, 1.0).normalized();
-            dirs[i] = d;
+            im.dirs[i] = d;
             double t;
             int b;
             Vector3d nn;
             if (!rs.cast(C, d, t, b, nn)) continue;
             Vector3d X = C + t * d;
+            im.hit[i] = 1, im.X[i] = X, im.N[i] = nn.dot(d) > 0 ? Vector3d(-nn) : nn;
             double cosc = std::abs(nn.dot(d));
             if (cosc < std::cos(deg(s.max_incidence))) continue;
             Vector3d toP = P - X;
@@ -472,10 +509,23 @@ ScanOut render(const RayScene& rs, const Isometry3d& T_cam, const Sensor& s, Rng
                 ++out.shadowed;
                 continue;
             }
-            depth[i] = t;
-            inc[i] = cosc;
-            body[i] = b;
+            im.depth[i] = t;
+            im.inc[i] = cosc;
+            im.body[i] = b;
         }
+    return im;
+}
+
+ScanOut render(const RayScene& rs, const Isometry3d& T_cam, const Sensor& s, Rng& r) {
+    ScanOut out;
+    out.T_machine_cam = T_cam;
+    const Matrix3d R = T_cam.linear();
+    const int n = s.W * s.H;
+    Image im = cast_image(rs, T_cam, s, out);
+    const std::vector<double>& depth = im.depth;
+    const std::vector<double>& inc = im.inc;
+    const std::vector<int>& body = im.body;
+    const std::vector<Vector3d>& dirs = im.dirs;
     // noise and bias along the ray
     std::vector<double> meas(size_t(n), -1.0);
     for (int i = 0; i < n; ++i)
@@ -532,6 +582,94 @@ ScanOut render(const RayScene& rs, const Isometry3d& T_cam, const Sensor& s, Rng
         out.pts.push_back(centre_cam + (1.0 + s.scale) * (pc - centre_cam));
         out.body.push_back(b);
     }
+    return out;
+}
+
+// The consumer depth camera (--sensor depthcam): the same camera and projector geometry (so the same
+// shadowing), then, in this order, on the depth along each ray:
+//  1. multipath: where the surface within multipath_radius of the pixel bends inwards (an inside corner),
+//     light bounced off the other face arrives late and the depth reads farther, by up to `multipath` at
+//     the crease, falling linearly to zero at multipath_radius. The rule: a neighbour in the window
+//     (at most 8 pixels either way) is on another face (normals more than 30 deg apart) and in front of the
+//     pixel's face (more than 0.2 mm along its normal), within multipath_radius in space;
+//  2. the bias field: `bias` (per scan) plus bias_field times the normalised cosine sum, read at the pixel;
+//  3. edge blurring: each depth replaced, in share 0.7-1, by the mean of its smooth_px x smooth_px window
+//  over
+//     the depths within smooth_jump of its own, across faces as well: convex edges are rounded;
+//  4. flying pixels: a pixel next to a larger jump (more than smooth_jump, 4-neighbours) takes, with
+//     probability fly_p, a depth between its own and its neighbour's, and belongs to no body;
+//  5. noise along the ray after the filter (the scatter a user measures on the output, as in a datasheet);
+//  6. the scale error about the work distance, as the present scanner.
+// No edge dropout and no other outliers: the flying pixels are this sensor's outliers.
+ScanOut render_depthcam(const RayScene& rs, const Isometry3d& T_cam, const Sensor& s, Rng& r) {
+    ScanOut out;
+    out.T_machine_cam = T_cam;
+    out.T_machine_scan = T_cam;
+    const Matrix3d R = T_cam.linear();
+    const int W = s.W, H = s.H;
+    const size_t n = size_t(W * H);
+    Image im = cast_image(rs, T_cam, s, out);
+    std::vector<double> d0(n, -1.0);  // after multipath and bias
+    for (int v = 0; v < H; ++v)
+        for (int u = 0; u < W; ++u) {
+            const size_t i = size_t(v * W + u);
+            if (im.depth[i] < 0) continue;
+            const double pix_mm = im.depth[i] / s.f;
+            const int w = std::min(8, int(std::ceil(s.multipath_radius / pix_mm)));
+            double push = 0;
+            for (int dv = -w; dv <= w; ++dv)
+                for (int du = -w; du <= w; ++du) {
+                    const int uu = u + du, vv = v + dv;
+                    if (uu < 0 || vv < 0 || uu >= W || vv >= H) continue;
+                    const size_t j = size_t(vv * W + uu);
+                    if (!im.hit[j] || im.N[i].dot(im.N[j]) > std::cos(deg(30))) continue;
+                    const Vector3d dX = im.X[j] - im.X[i];
+                    const double dist = dX.norm();
+                    if (im.N[i].dot(dX) > 0.2 && dist < s.multipath_radius)
+                        push = std::max(push, s.multipath * (1.0 - dist / s.multipath_radius));
+                }
+            d0[i] = im.depth[i] + push + bias_at(s, u + 0.5, v + 0.5);
+        }
+    std::vector<double> d1 = d0;  // edge-blurred
+    const int hw = s.smooth_px / 2;
+    const double mix = s.smooth;
+    for (int v = 0; v < H; ++v)
+        for (int u = 0; u < W; ++u) {
+            const size_t i = size_t(v * W + u);
+            if (d0[i] < 0) continue;
+            double sum = 0;
+            int c = 0;
+            for (int dv = -hw; dv <= hw; ++dv)
+                for (int du = -hw; du <= hw; ++du) {
+                    const int uu = u + du, vv = v + dv;
+                    if (uu < 0 || vv < 0 || uu >= W || vv >= H) continue;
+                    const double m = d0[size_t(vv * W + uu)];
+                    if (m > 0 && std::abs(m - d0[i]) < s.smooth_jump) sum += m, ++c;
+                }
+            d1[i] = (1 - mix) * d0[i] + mix * sum / c;
+        }
+    const Vector3d centre_cam(0, 0, s.work_distance);
+    for (int v = 0; v < H; ++v)
+        for (int u = 0; u < W; ++u) {
+            const size_t i = size_t(v * W + u);
+            if (d1[i] < 0) continue;
+            double t = d1[i];
+            int b = im.body[i];
+            double jump = 0;  // the largest jump to a 4-neighbour, signed towards it
+            const int nb[4][2] = {{1, 0}, {-1, 0}, {0, 1}, {0, -1}};
+            for (const auto& o : nb) {
+                const int uu = u + o[0], vv = v + o[1];
+                if (uu < 0 || vv < 0 || uu >= W || vv >= H) continue;
+                const double m = d1[size_t(vv * W + uu)];
+                if (m > 0 && std::abs(m - t) > std::abs(jump)) jump = m - t;
+            }
+            if (std::abs(jump) > s.smooth_jump && r.chance(s.fly_p)) t += r.uni(0.15, 0.85) * jump, b = -1;
+            t += s.noise * (1.0 + 0.6 * (1.0 - im.inc[i])) * r.gauss();
+            const Vector3d pc = R.transpose() * (t * im.dirs[i]);
+            out.pts.push_back(centre_cam + (1.0 + s.scale) * (pc - centre_cam));
+            out.body.push_back(b);
+            out.pixel.push_back(int(i));
+        }
     return out;
 }
 
@@ -599,6 +737,9 @@ Mesh rect(Vector3d o, Vector3d e1, Vector3d e2) {  // a rectangle facing e1 x e2
 bool g_ideal =
     false;  // --ideal: a perfect sensor (no noise, bias, smoothing, dropout, scale error, outliers)
 bool g_no_scale = false;  // --no-scale: the sensor as drawn, but without its scale error
+bool g_depthcam =
+    false;  // --sensor depthcam: a consumer depth camera instead of the structured-light scanner
+bool g_no_noise = false;  // self-test only: the sensor as drawn, without its random noise
 
 Cell build_cell(uint64_t seed, bool small) {
     Rng r(seed);
@@ -723,8 +864,10 @@ Cell build_cell(uint64_t seed, bool small) {
                    170, Isometry3d::Identity());
     }
     // ---- scans
-    c.spacing = r.uni(0.3, 0.5);
-    c.noise = r.uni(0.04, 0.18);
+    // the depth camera: 640 x 480 at 350-600 mm gives 0.6-1.0 mm between points (the same two draws, so
+    // the bodies and the stream up to the first scan are the same as the scanner's)
+    c.spacing = g_depthcam ? r.uni(0.6, 1.0) : r.uni(0.3, 0.5);
+    c.noise = g_depthcam ? r.uni(0.2, 0.35) : r.uni(0.04, 0.18);
     std::vector<int> all;
     for (size_t i = 0; i < c.bodies.size(); ++i) all.push_back(int(i));
     RayScene rs(c.bodies, all);
@@ -756,6 +899,46 @@ Cell build_cell(uint64_t seed, bool small) {
         if (g_ideal) s.noise = 0.01, s.bias = 0, s.smooth = 0, s.edge_p = 0, s.scale = 0, s.outliers = 0;
         return s;
     };
+    auto make_depthcam = [&](double dist) {
+        Sensor s;
+        s.depthcam = true;
+        if (small) s.W = 320, s.H = 240;
+        s.work_distance = dist;
+        s.f = dist / (c.spacing * r.uni(0.9, 1.1)) * (small ? 0.5 : 1.0);
+        s.baseline = r.uni(50, 95);  // RealSense D4xx 50-55 mm, Kinect v1 75 mm
+        s.noise = c.noise;           // the datasheet's figure, as the job's scanner block gives it
+        s.bias = (r.chance(0.5) ? -1.0 : 1.0) * r.uni(0.3, 1.5);
+        s.bias_field = r.uni(0.3, 1.0);
+        for (auto& t : s.field)  // up to about one cycle over the image: a smooth, low-order field
+            t = {r.uni(0.5, 1.0), r.uni(-1.0, 1.0), r.uni(-1.0, 1.0), r.uni(0, 2 * kPi)};
+        {  // normalise: the largest |sum| over the image (on a 32 x 24 grid) is 1
+            Sensor unit = s;
+            unit.bias = 0, unit.bias_field = 1;
+            double m = 1e-9;
+            for (int v = 0; v <= 24; ++v)
+                for (int u = 0; u <= 32; ++u)
+                    m = std::max(m, std::abs(bias_at(unit, u * s.W / 32.0, v * s.H / 24.0)));
+            for (auto& t : s.field) t.w /= m;
+        }
+        s.smooth_px = 5 + 2 * r.integer(0, 2);
+        s.smooth = r.uni(0.7, 1.0);
+        s.smooth_jump = r.uni(3.0, 8.0);
+        s.fly_p = r.uni(0.2, 0.6);
+        s.multipath = r.uni(0.5, 1.5);
+        s.multipath_radius = r.uni(3.0, 5.0);
+        s.scale = r.uni(-0.003, 0.003);
+        s.edge_p = 0, s.outliers = 0;
+        if (g_no_scale) s.scale = 0;
+        if (g_no_noise) s.noise = 0, s.fly_p = 0;
+        if (g_ideal)
+            s = make_sensor(dist), s.noise = 0.01, s.bias = 0, s.smooth = 0, s.edge_p = 0, s.scale = 0,
+            s.outliers = 0;
+        return s;
+    };
+    auto sensor_for = [&](double dist) { return g_depthcam ? make_depthcam(dist) : make_sensor(dist); };
+    auto scan_with = [&](const Isometry3d& Tc, const Sensor& s) {
+        return s.depthcam ? render_depthcam(rs, Tc, s, r) : render(rs, Tc, s, r);
+    };
     auto counts = [&](const ScanOut& o) {
         std::vector<int> n(size_t(nf), 0);
         for (int b : o.body)
@@ -766,8 +949,8 @@ Cell build_cell(uint64_t seed, bool small) {
     std::vector<double> A_values = {0, 30, -30, 60, -45, 15, 45};
     for (int k = 0; k < nscans; ++k) {
         Scan s;
-        double dist = r.uni(300, 480);
-        s.sensor = make_sensor(dist);
+        double dist = g_depthcam ? r.uni(350, 600) : r.uni(300, 480);
+        s.sensor = sensor_for(dist);
         Vector3d fc = body_centre(fid_bodies[size_t(k % nf)]);
         Vector3d target = wp_c + r.uni(0.3, 0.65) * (fc - wp_c);
         // the scanner stands on the fiducial's side of the part, looking in and down
@@ -775,7 +958,7 @@ Cell build_cell(uint64_t seed, bool small) {
                el = deg(r.uni(35, 70));
         Vector3d dir(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
         Isometry3d Tc = look_at(target + dist * dir, target, r);
-        s.out = render(rs, Tc, s.sensor, r);
+        s.out = scan_with(Tc, s.sensor);
         s.fid_counts = counts(s.out);
         if (c.rotary) {
             s.A = A_values[size_t(k) % A_values.size()];
@@ -790,12 +973,14 @@ Cell build_cell(uint64_t seed, bool small) {
         for (int t = 0; t < tries; ++t) {
             Scan s;
             double dist = r.uni(260, 340);
-            s.sensor = make_sensor(dist);
+            s.sensor = sensor_for(dist);
+            // a close view: the scanner's smaller frame; the depth camera's scan cropped as a user would
             s.sensor.W = small ? 200 : 400, s.sensor.H = small ? 150 : 300;
+            if (s.sensor.depthcam) s.sensor.W = small ? 160 : 240, s.sensor.H = small ? 120 : 180;
             double az = r.uni(0, 2 * kPi), el = deg(r.uni(50, 85));
             Vector3d dir(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
             Vector3d tg = target + Vector3d(r.uni(-10, 10), r.uni(-10, 10), 0);
-            s.out = render(rs, look_at(tg + dist * dir, tg, r), s.sensor, r);
+            s.out = scan_with(look_at(tg + dist * dir, tg, r), s.sensor);
             s.fid_counts = counts(s.out);
             int nfid = 0, other = 0;
             for (int n : s.fid_counts) nfid += n;
@@ -938,9 +1123,34 @@ void write_cell(const Cell& c, const fs::path& dir, uint64_t seed, const std::st
         // tolerance on the check points: 0.1 mm, plus what the sensor's own systematic errors move a right
         // rigid fit by (the bias along the line of sight; the scale error at the check points' distance from
         // the centre of the scanner's volume, work_distance along its axis, about which it scales)
-        js["tolerance"] = {
-            {"translation", (0.1 + std::abs(s.sensor.bias) + std::abs(s.sensor.scale) * rmax) * k},
-            {"rotation_deg", 0.05}};
+        double bias_tol = std::abs(s.sensor.bias), rot_tol = 0.05;
+        if (s.sensor.depthcam) {
+            // the depth camera's bias varies over the image: a right rigid fit is moved by up to the largest
+            // |bias| over the fiducials' pixels, and turned by up to the field's steepest slope over them
+            // (mm of bias per mm across the surface: per pixel over the pixel's footprint, depth / f)
+            double bmax = 0, slope = 0;
+            for (size_t p = 0; p < s.out.pts.size(); ++p) {
+                if (s.out.body[p] < 0 || c.bodies[size_t(s.out.body[p])].fiducial < 0) continue;
+                const int pix = s.out.pixel[p];
+                Vector2d g;
+                bmax = std::max(
+                    bmax, std::abs(bias_at(s.sensor, pix % s.sensor.W + 0.5, pix / s.sensor.W + 0.5, &g)));
+                slope = std::max(slope, g.norm() * s.sensor.f / s.out.pts[p].norm());
+            }
+            bias_tol = bmax;
+            rot_tol = 0.05 + std::atan(slope) * 180.0 / kPi;
+            js["sensor"]["model"] = "depthcam";
+            js["sensor"]["bias_field"] = s.sensor.bias_field * k;
+            js["sensor"]["bias_max_on_fiducials"] = bmax * k;
+            js["sensor"]["bias_slope_max_on_fiducials"] = slope;
+            js["sensor"]["smoothing_window_px"] = s.sensor.smooth_px;
+            js["sensor"]["smoothing_jump"] = s.sensor.smooth_jump * k;
+            js["sensor"]["flying_pixel_p"] = s.sensor.fly_p;
+            js["sensor"]["multipath"] = s.sensor.multipath * k;
+            js["sensor"]["multipath_radius"] = s.sensor.multipath_radius * k;
+        }
+        js["tolerance"] = {{"translation", (0.1 + bias_tol + std::abs(s.sensor.scale) * rmax) * k},
+                           {"rotation_deg", rot_tol}};
         truth["scans"].push_back(js);
     }
     std::ofstream(dir / "job.yaml") << y.str();
@@ -1095,12 +1305,17 @@ int main(int argc, char** argv) {
                 g_ideal = true;
             else if (a == "--no-scale")
                 g_no_scale = true;
-            else if (a == "--selftest")
+            else if (a == "--sensor") {
+                const std::string v = next();
+                if (v != "scanner" && v != "depthcam")
+                    throw std::runtime_error("--sensor " + v + ": scanner or depthcam");
+                g_depthcam = v == "depthcam";
+            } else if (a == "--selftest")
                 return selftest();
             else if (a == "-h" || a == "--help") {
                 std::printf(
                     "partloc_world2 --out DIR [--seed N] [--unit um|mm|m|in] [--small] "
-                    "[--ideal] [--no-scale]\npartloc_world2 --selftest\n");
+                    "[--ideal] [--no-scale] [--sensor scanner|depthcam]\npartloc_world2 --selftest\n");
                 return 0;
             } else
                 throw std::runtime_error("unknown option " + a);
