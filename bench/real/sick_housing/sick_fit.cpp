@@ -12,10 +12,10 @@
 //   sick_fit compare m00..m33 n00..n33 MODEL         rotation and translation differences of two poses
 //
 // Build: g++ -O2 -std=c++17 sick_fit.cpp -I/usr/include/eigen3 -lOpen3D -lfmt -o sick_fit
-#include <Eigen/Eigenvalues>
 #include <open3d/Open3D.h>
 #include <open3d/t/geometry/RaycastingScene.h>
 
+#include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -28,11 +28,11 @@
 #include <vector>
 
 namespace reg = open3d::pipelines::registration;
+using Eigen::Matrix4d;
+using Eigen::Vector3d;
 using open3d::geometry::KDTreeFlann;
 using open3d::geometry::PointCloud;
 using open3d::geometry::TriangleMesh;
-using Eigen::Matrix4d;
-using Eigen::Vector3d;
 
 namespace {
 
@@ -182,10 +182,11 @@ int cmd_register(const std::string& model_path, const std::string& scan_path, in
             f.ransac_fitness = r.fitness_;
             f.ransac_rmse = r.inlier_rmse_;
             const Matrix4d& T = f.T_scan_model;
-            std::printf("seed %2d mutual %d  ransac fitness %.3f rmse %.2f  ->  icp inliers(3mm) %4d fitness %.4f "
-                        "rmse %.3f  t [%.2f %.2f %.2f]\n",
-                        seed, int(mutual), f.ransac_fitness, f.ransac_rmse, f.inliers, f.fitness, f.rmse, T(0, 3),
-                        T(1, 3), T(2, 3));
+            std::printf(
+                "seed %2d mutual %d  ransac fitness %.3f rmse %.2f  ->  icp inliers(3mm) %4d fitness %.4f "
+                "rmse %.3f  t [%.2f %.2f %.2f]\n",
+                seed, int(mutual), f.ransac_fitness, f.ransac_rmse, f.inliers, f.fitness, f.rmse, T(0, 3),
+                T(1, 3), T(2, 3));
             if (f.inliers > best.inliers || (f.inliers == best.inliers && f.rmse < best.rmse)) {
                 best = f;
                 best_seed = seed * 10 + int(mutual);
@@ -203,7 +204,8 @@ int cmd_register(const std::string& model_path, const std::string& scan_path, in
 
 // Multi-start ICP: N random rotations (uniform quaternions) with the CAD box centre at the point C; ranked
 // by the scan points within 3 mm of the CAD after ICP. No features: an independent check of the RANSAC.
-int cmd_multistart(const std::string& model_path, const std::string& scan_path, int starts, const Vector3d& C) {
+int cmd_multistart(const std::string& model_path, const std::string& scan_path, int starts,
+                   const Vector3d& C) {
     auto mesh = load_mesh(model_path);
     auto scan = load_cloud(scan_path);
     Samples s = sample_mesh(*mesh, 4.0, 1);
@@ -234,7 +236,8 @@ int cmd_multistart(const std::string& model_path, const std::string& scan_path, 
     for (const Fit& f : fits) {
         bool dup = false;
         for (const Fit& e : distinct) {
-            Eigen::Matrix3d dR = e.T_scan_model.block<3, 3>(0, 0).transpose() * f.T_scan_model.block<3, 3>(0, 0);
+            Eigen::Matrix3d dR =
+                e.T_scan_model.block<3, 3>(0, 0).transpose() * f.T_scan_model.block<3, 3>(0, 0);
             double ang = std::acos(std::clamp((dR.trace() - 1) / 2, -1.0, 1.0)) * 180 / M_PI;
             double dc = ((e.T_scan_model - f.T_scan_model) * c.homogeneous()).head<3>().norm();
             if (ang < 3 && dc < 3) dup = true;
@@ -246,27 +249,28 @@ int cmd_multistart(const std::string& model_path, const std::string& scan_path, 
         const Fit& f = distinct[i];
         int same = 0;
         for (const Fit& h : fits) {
-            Eigen::Matrix3d dR = h.T_scan_model.block<3, 3>(0, 0).transpose() * f.T_scan_model.block<3, 3>(0, 0);
+            Eigen::Matrix3d dR =
+                h.T_scan_model.block<3, 3>(0, 0).transpose() * f.T_scan_model.block<3, 3>(0, 0);
             double ang = std::acos(std::clamp((dR.trace() - 1) / 2, -1.0, 1.0)) * 180 / M_PI;
             if (ang < 3 && ((h.T_scan_model - f.T_scan_model) * c.homogeneous()).head<3>().norm() < 3) ++same;
         }
-        std::printf("#%zu inliers(3mm) %d fitness %.4f rmse %.3f  reached from %d of %d starts\n  flat", i, f.inliers,
-                    f.fitness, f.rmse, same, starts);
+        std::printf("#%zu inliers(3mm) %d fitness %.4f rmse %.3f  reached from %d of %d starts\n  flat", i,
+                    f.inliers, f.fitness, f.rmse, same, starts);
         for (int j = 0; j < 16; ++j) std::printf(" %.9g", f.T_scan_model(j / 4, j % 4));
         std::printf("\n");
     }
     return 0;
 }
 
-// The SICK sample's own pre-processing (its scripts/main.lua, step 4-5): the dominant plane, fitted with a 15 mm
-// distance threshold, removed; what is left goes to the matcher.
+// The SICK sample's own pre-processing (its scripts/main.lua, step 4-5): the dominant plane, fitted with a 15
+// mm distance threshold, removed; what is left goes to the matcher.
 int cmd_noplane(const std::string& scan_path, const std::string& out, double threshold) {
     auto scan = load_cloud(scan_path);
     open3d::utility::random::Seed(1);
     auto [plane, in] = scan->SegmentPlane(threshold, 3, 2000);
     auto rest = scan->SelectByIndex(in, true);
-    std::printf("plane %.4f %.4f %.4f %.2f: %zu of %zu points removed, %zu left\n", plane(0), plane(1), plane(2),
-                plane(3), in.size(), scan->points_.size(), rest->points_.size());
+    std::printf("plane %.4f %.4f %.4f %.2f: %zu of %zu points removed, %zu left\n", plane(0), plane(1),
+                plane(2), plane(3), in.size(), scan->points_.size(), rest->points_.size());
     open3d::io::WritePointCloud(out, *rest, {true});
     return 0;
 }
@@ -367,9 +371,9 @@ struct ZBuffer {
 };
 
 void print_stats(const char* label, const std::vector<double>& d) {
-    std::printf("  %-34s n %5zu  median %+7.3f  robust sigma %6.3f  within 1/2/3 mm %5.1f %5.1f %5.1f %%\n", label,
-                d.size(), median(d), robust_sigma(d), 100 * share_within(d, 1), 100 * share_within(d, 2),
-                100 * share_within(d, 3));
+    std::printf("  %-34s n %5zu  median %+7.3f  robust sigma %6.3f  within 1/2/3 mm %5.1f %5.1f %5.1f %%\n",
+                label, d.size(), median(d), robust_sigma(d), 100 * share_within(d, 1),
+                100 * share_within(d, 2), 100 * share_within(d, 3));
 }
 
 int cmd_eval(const std::string& model_path, const std::string& scan_path, const Matrix4d& T_scan_model) {
@@ -400,7 +404,8 @@ int cmd_eval(const std::string& model_path, const std::string& scan_path, const 
     std::vector<Vector3d> pm;  // scan points in the model frame, within the CAD's box + margin
     for (const auto& p : scan->points_) {
         Vector3d q = (T_model_scan * p.homogeneous()).head<3>();
-        if ((q.array() >= bb.min_bound_.array() - margin).all() && (q.array() <= bb.max_bound_.array() + margin).all())
+        if ((q.array() >= bb.min_bound_.array() - margin).all() &&
+            (q.array() <= bb.max_bound_.array() + margin).all())
             pm.push_back(q);
     }
     const size_t n = pm.size();
@@ -417,7 +422,8 @@ int cmd_eval(const std::string& model_path, const std::string& scan_path, const 
     // Visibility: Open3D 0.16 RaycastingScene::CastRays finds no hit at all in this build (t_hit inf even
     // for rays through the CAD centre), so a z-buffer of dense CAD samples seen from the sensor stands in.
     Samples s = sample_mesh(*mesh, 4.0, 7);
-    const ZBuffer zb(s.p, eye, (mesh->GetCenter() - eye).normalized(), 0.6 / (mesh->GetCenter() - eye).norm());
+    const ZBuffer zb(s.p, eye, (mesh->GetCenter() - eye).normalized(),
+                     0.6 / (mesh->GetCenter() - eye).norm());
     const size_t ns = s.p.size();
 
     Edges edges = sharp_edges(*mesh);
@@ -450,8 +456,9 @@ int cmd_eval(const std::string& model_path, const std::string& scan_path, const 
     for (double x : d)
         if (std::abs(x) <= 10) near.push_back(x);
     print_stats("those within 10 mm of the CAD", near);
-    std::printf("  seen through the CAD (ray meets the CAD > 1 mm / > 3 mm before the point): %d / %d of %zu\n",
-                seen_through, seen_through_3, n);
+    std::printf(
+        "  seen through the CAD (ray meets the CAD > 1 mm / > 3 mm before the point): %d / %d of %zu\n",
+        seen_through, seen_through_3, n);
 
     std::printf("by distance of the closest CAD point to a sharp edge (only |d| <= 10 mm):\n");
     const double eb[] = {0, 2, 5, 10, 1e9};
@@ -459,7 +466,8 @@ int cmd_eval(const std::string& model_path, const std::string& scan_path, const 
         for (int cc = 0; cc < 2; ++cc) {
             std::vector<double> v;
             for (size_t i = 0; i < n; ++i)
-                if (std::abs(d[i]) <= 10 && edge_dist[i] >= eb[b] && edge_dist[i] < eb[b + 1] && edge_concave[i] == cc)
+                if (std::abs(d[i]) <= 10 && edge_dist[i] >= eb[b] && edge_dist[i] < eb[b + 1] &&
+                    edge_concave[i] == cc)
                     v.push_back(d[i]);
             char lab[64];
             std::snprintf(lab, sizeof lab, "edge %g-%g mm, %s", eb[b], eb[b + 1] > 1e8 ? 999 : eb[b + 1],
@@ -471,7 +479,8 @@ int cmd_eval(const std::string& model_path, const std::string& scan_path, const 
     for (int b = 0; b < 4; ++b) {
         std::vector<double> v;
         for (size_t i = 0; i < n; ++i)
-            if (std::abs(d[i]) <= 10 && edge_dist[i] >= 5 && incid[i] >= ab[b] && incid[i] < ab[b + 1]) v.push_back(d[i]);
+            if (std::abs(d[i]) <= 10 && edge_dist[i] >= 5 && incid[i] >= ab[b] && incid[i] < ab[b + 1])
+                v.push_back(d[i]);
         char lab[64];
         std::snprintf(lab, sizeof lab, "incidence %g-%g deg", ab[b], ab[b + 1] > 90 ? 90 : ab[b + 1]);
         if (!v.empty()) print_stats(lab, v);
@@ -500,9 +509,12 @@ int cmd_eval(const std::string& model_path, const std::string& scan_path, const 
             if (!near_cloud.points_.empty() && near_tree.SearchRadius(s.p[i], r, idx, d2) > 0) ++covered[r];
         }
     }
-    std::printf("visible CAD surface from the sensor: about %.0f mm^2 of %.0f; with a scan point (|d| <= 3 mm) within "
-                "3 / 5 / 7.5 mm: %.1f / %.1f / %.1f %%\n",
-                vis / 4.0, ns / 4.0, 100.0 * covered[3.0] / vis, 100.0 * covered[5.0] / vis, 100.0 * covered[7.5] / vis);
+    std::printf(
+        "visible CAD surface from the sensor: about %.0f mm^2 of %.0f; with a scan point (|d| <= 3 mm) "
+        "within "
+        "3 / 5 / 7.5 mm: %.1f / %.1f / %.1f %%\n",
+        vis / 4.0, ns / 4.0, 100.0 * covered[3.0] / vis, 100.0 * covered[5.0] / vis,
+        100.0 * covered[7.5] / vis);
     int big = 0, big_hit = 0, big_hit3 = 0;
     std::vector<int> order(nfaces);
     std::iota(order.begin(), order.end(), 0);
@@ -513,11 +525,15 @@ int cmd_eval(const std::string& model_path, const std::string& scan_path, const 
         if (face_pts[f] > 0) ++big_hit;
         if (face_pts[f] >= 3) ++big_hit3;
     }
-    std::printf("planar faces (5 deg) with >= 100 mm^2 visible: %d; with >= 1 / >= 3 scan points (|d| <= 3 mm): %d / %d\n",
-                big, big_hit, big_hit3);
+    std::printf(
+        "planar faces (5 deg) with >= 100 mm^2 visible: %d; with >= 1 / >= 3 scan points (|d| <= 3 mm): %d / "
+        "%d\n",
+        big, big_hit, big_hit3);
 
-    // Per large visible face: scan points on it, their offset from the CAD plane and their own plane's scatter.
-    std::printf("largest visible faces (points with |d| <= 5 mm, closest CAD point > 3 mm from a sharp edge):\n");
+    // Per large visible face: scan points on it, their offset from the CAD plane and their own plane's
+    // scatter.
+    std::printf(
+        "largest visible faces (points with |d| <= 5 mm, closest CAD point > 3 mm from a sharp edge):\n");
     const PointCloud box_cloud(pm);
     KDTreeFlann scan_tree(box_cloud);
     std::vector<double> local_all, cad_all;
@@ -549,10 +565,12 @@ int cmd_eval(const std::string& model_path, const std::string& scan_path, const 
         }
         double inc = 0;
         for (int i : on) inc += incid[i];
-        std::printf("  face %4d normal [%+.2f %+.2f %+.2f] visible %5.0f mm^2  pts %3zu  incidence %4.1f deg  "
-                    "median d %+6.3f  robust sigma to CAD %5.3f  own-plane robust sigma %5.3f  plane tilt %4.1f deg\n",
-                    f, nf(0), nf(1), nf(2), face_vis_area[f], on.size(), on.empty() ? NAN : inc / on.size(),
-                    median(df), robust_sigma(df), plane_sigma, tilt);
+        std::printf(
+            "  face %4d normal [%+.2f %+.2f %+.2f] visible %5.0f mm^2  pts %3zu  incidence %4.1f deg  "
+            "median d %+6.3f  robust sigma to CAD %5.3f  own-plane robust sigma %5.3f  plane tilt %4.1f "
+            "deg\n",
+            f, nf(0), nf(1), nf(2), face_vis_area[f], on.size(), on.empty() ? NAN : inc / on.size(),
+            median(df), robust_sigma(df), plane_sigma, tilt);
         // Local scatter: the 8 nearest scan points on the same face, a plane through them.
         for (int i : on) {
             std::vector<int> idx;
@@ -573,8 +591,10 @@ int cmd_eval(const std::string& model_path, const std::string& scan_path, const 
             cad_all.push_back(d[i]);
         }
     }
-    std::printf("local scatter (plane through 7-9 neighbours on one face, dof-corrected): n %zu  median sigma %.3f mm\n",
-                local_all.size(), median(local_all));
+    std::printf(
+        "local scatter (plane through 7-9 neighbours on one face, dof-corrected): n %zu  median sigma %.3f "
+        "mm\n",
+        local_all.size(), median(local_all));
     std::printf("  the same points against the CAD: median d %+.3f  robust sigma %.3f mm\n", median(cad_all),
                 robust_sigma(cad_all));
 
@@ -587,9 +607,10 @@ int cmd_eval(const std::string& model_path, const std::string& scan_path, const 
             if (edge_dist[i] < 5 && edge_concave[i]) ++big_concave;
             if (d[i] < 0) ++big_inside;
         }
-    std::printf("points with 3 < |d| <= 10 mm: %d; of them within 5 mm of a sharp edge %d (concave %d); inside the "
-                "CAD %d\n",
-                big_res, big_edge, big_concave, big_inside);
+    std::printf(
+        "points with 3 < |d| <= 10 mm: %d; of them within 5 mm of a sharp edge %d (concave %d); inside the "
+        "CAD %d\n",
+        big_res, big_edge, big_concave, big_inside);
     return 0;
 }
 
@@ -600,9 +621,10 @@ int cmd_compare(const Matrix4d& A, const Matrix4d& B, const std::string& model_p
     const double ang = std::acos(std::clamp((dR.trace() - 1) / 2, -1.0, 1.0)) * 180 / M_PI;
     const Vector3d dt = B.block<3, 1>(0, 3) - A.block<3, 1>(0, 3);
     const Vector3d dc = (B * c.homogeneous() - A * c.homogeneous()).head<3>();
-    std::printf("rotation difference %.3f deg; translation difference [%.3f %.3f %.3f] |%.3f| mm; the CAD box "
-                "centre [%.1f %.1f %.1f] moves by %.3f mm\n",
-                ang, dt(0), dt(1), dt(2), dt.norm(), c(0), c(1), c(2), dc.norm());
+    std::printf(
+        "rotation difference %.3f deg; translation difference [%.3f %.3f %.3f] |%.3f| mm; the CAD box "
+        "centre [%.1f %.1f %.1f] moves by %.3f mm\n",
+        ang, dt(0), dt(1), dt(2), dt.norm(), c(0), c(1), c(2), dc.norm());
     return 0;
 }
 
@@ -612,7 +634,8 @@ int main(int argc, char** argv) {
     open3d::utility::SetVerbosityLevel(open3d::utility::VerbosityLevel::Error);
     const std::string cmd = argc > 1 ? argv[1] : "";
     if (cmd == "register" && argc >= 4)
-        return cmd_register(argv[2], argv[3], argc > 4 ? std::atoi(argv[4]) : 8, argc > 5 ? std::atof(argv[5]) : 5.0);
+        return cmd_register(argv[2], argv[3], argc > 4 ? std::atoi(argv[4]) : 8,
+                            argc > 5 ? std::atof(argv[5]) : 5.0);
     if (cmd == "icp" && argc == 20) {  // sick_fit icp MODEL SCAN m00..m33: refine() from a given pose
         auto mesh = load_mesh(argv[2]);
         auto scan = load_cloud(argv[3]);
@@ -628,10 +651,13 @@ int main(int argc, char** argv) {
     }
     if (cmd == "noplane" && argc == 5) return cmd_noplane(argv[2], argv[3], std::atof(argv[4]));
     if (cmd == "multistart" && argc == 8)
-        return cmd_multistart(argv[2], argv[3], std::atoi(argv[4]), Vector3d(std::atof(argv[5]), std::atof(argv[6]), std::atof(argv[7])));
+        return cmd_multistart(argv[2], argv[3], std::atoi(argv[4]),
+                              Vector3d(std::atof(argv[5]), std::atof(argv[6]), std::atof(argv[7])));
     if (cmd == "eval" && argc == 20) return cmd_eval(argv[2], argv[3], parse_matrix(argv + 4));
-    if (cmd == "compare" && argc == 35) return cmd_compare(parse_matrix(argv + 2), parse_matrix(argv + 18), argv[34]);
-    std::fprintf(stderr, "usage: sick_fit register MODEL SCAN [SEEDS] [VOXEL] | eval MODEL SCAN m00..m33 | "
-                         "compare A00..A33 B00..B33 MODEL\n");
+    if (cmd == "compare" && argc == 35)
+        return cmd_compare(parse_matrix(argv + 2), parse_matrix(argv + 18), argv[34]);
+    std::fprintf(stderr,
+                 "usage: sick_fit register MODEL SCAN [SEEDS] [VOXEL] | eval MODEL SCAN m00..m33 | "
+                 "compare A00..A33 B00..B33 MODEL\n");
     return 2;
 }
