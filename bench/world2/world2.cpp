@@ -594,9 +594,8 @@ ScanOut render(const RayScene& rs, const Isometry3d& T_cam, const Sensor& s, Rng
 //     pixel's face (more than 0.2 mm along its normal) and within 3 multipath_radius in space; the distance
 //     is the pixel's to the crease, the line where the two faces' planes meet;
 //  2. the bias field: `bias` (per scan) plus bias_field times the normalised cosine sum, read at the pixel;
-//  3. edge blurring: each depth replaced, in share 0.7-1, by the mean of its smooth_px x smooth_px window
-//  over
-//     the depths within smooth_jump of its own, across faces as well: convex edges are rounded;
+//  3. edge blurring: each depth replaced, in share 0.7-1, by the mean of its smooth_px x smooth_px
+//     window over the depths within smooth_jump of its own, across faces as well: convex edges are rounded;
 //  4. flying pixels: a pixel next to a larger jump (more than smooth_jump, 4-neighbours) takes, with
 //     probability fly_p, a depth between its own and its neighbour's, and belongs to no body;
 //  5. noise along the ray after the filter (the scatter a user measures on the output, as in a datasheet);
@@ -980,9 +979,7 @@ Cell build_cell(uint64_t seed, bool small) {
         s.edge_p = 0, s.outliers = 0;
         if (g_no_scale) s.scale = 0;
         if (g_no_noise) s.noise = 0, s.fly_p = 0;
-        if (g_ideal)
-            s = make_sensor(dist), s.noise = 0.01, s.bias = 0, s.smooth = 0, s.edge_p = 0, s.scale = 0,
-            s.outliers = 0;
+        if (g_ideal) s = make_sensor(dist);  // the scanner's perfect sensor (make_sensor applies --ideal)
         return s;
     };
     auto sensor_for = [&](double dist) { return g_depthcam ? make_depthcam(dist) : make_sensor(dist); };
@@ -1373,8 +1370,6 @@ int selftest() {
             const int u = o.pixel[i] % s.W, v = o.pixel[i] / s.W;
             const Vector3d ray = o.pts[i].normalized();
             const Vector3d p = T * (o.pts[i] - bias_at(s, u + 0.5, v + 0.5) * ray);
-            const Vector3d pd = T * (o.pts[i] - (o.pts[i].norm() - 400.0) * ray);  // unused below: debug aid
-            (void)pd;
             const double off = std::min(std::abs(p.z()), mesh_dist(p, b[1].mesh));
             const bool floor = o.body[i] == 0;
             const double from_face = p.x() + 110;  // floor: distance from the post's +x face
