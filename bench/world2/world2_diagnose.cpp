@@ -13,6 +13,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
@@ -198,12 +199,71 @@ int main(int argc, char** argv) {
                     const bool near = o.at_centre < 0.5 && o.deg < 0.5;
                     char buf[200];
                     if (best.valid)
-                        std::snprintf(buf, sizeof buf, "%s (%.2f, %.2f deg)", near ? "right" : "wrong",
-                                      o.at_centre, o.deg);
+                        std::snprintf(buf, sizeof buf, "%s (%.2f, %.2f deg) holders %.0f weak bins %zu/%zu",
+                                      near ? "right" : "wrong", o.at_centre, o.deg, best.weakest_holders,
+                                      best.weakest_observed, best.weakest_against);
                     else
                         std::snprintf(buf, sizeof buf, "%s (%.1f, %.1f deg): %s", near ? "near" : "far",
                                       o.at_centre, o.deg, short_reason(best.reason).c_str());
                     fits_say = buf;
+                }
+                if (verbose && !at_truth.empty() && !fits.empty()) {
+                    // Where the fit from the truth ends and how much of the scan it explains, beside the
+                    // run's first fit: a first fit with less support than the truth's is a local optimum.
+                    const FiducialFit& a = at_truth.front();
+                    const FiducialFit& b = fits.front();
+                    const Offset oa = offset(a.T_scan_fiducial, T_true, m.dense.center);
+                    const Offset ob = offset(b.T_scan_fiducial, a.T_scan_fiducial, m.dense.center);
+                    std::printf(
+                        "  from truth: %s %.3f mm %.3f deg, support %.1f (inliers %zu score %.4f "
+                        "cond %.4f holders %.0f weak bins %zu/%zu); run's first: support %.1f "
+                        "(inliers %zu score %.4f cond %.4f holders %.0f weak bins %zu/%zu), "
+                        "%.3f mm %.3f deg from it\n",
+                        a.valid ? "valid" : "invalid", oa.at_centre, oa.deg, support(a), a.inliers, a.score,
+                        a.conditioning, a.weakest_holders, a.weakest_observed, a.weakest_against, support(b),
+                        b.inliers, b.score, b.conditioning, b.weakest_holders, b.weakest_observed,
+                        b.weakest_against, ob.at_centre, ob.deg);
+                    // Which faces pull the fit from the truth towards where it ends: at the truth, each
+                    // point's Tukey-weighted residual times its sample normal's share of the slide direction,
+                    // summed by the sample's normal (rounded to 0.1).
+                    const Eigen::Isometry3d D = T_true.inverse() * a.T_scan_fiducial;  // model -> model
+                    const Eigen::Vector3d v = D * m.dense.center - m.dense.center;
+                    if (v.norm() > 0.1 * m.sampling) {
+                        const Eigen::Vector3d vh = v.normalized();
+                        const double c = verify_settings(ps, m).inlier_distance;
+                        std::vector<int> idx2;
+                        ps.grid->within(T_true * m.dense.center, m.dense.diameter / 2.0 + 2.0 * m.sampling,
+                                        idx2);
+                        std::map<std::string, std::pair<double, int>> pull;
+                        for (int j : idx2) {
+                            const Eigen::Vector3d q = T_true.inverse() * ps.cloud->points_[j];
+                            int nn[8];
+                            double d2[8];
+                            const int found = m.dense.nearest(q, 4, c, nn, d2);
+                            double r = 0.0;
+                            const int k2 = nearest_plane(m.dense, q, nullptr, 0.0, nn, found, &r);
+                            if (k2 < 0 || std::abs(r) >= c) continue;
+                            const Eigen::Vector3d& n = m.dense.normals[k2];
+                            char key[80];
+                            std::snprintf(key, sizeof key, "n(%+.1f %+.1f %+.1f) at(%+.0f %+.0f %+.0f)",
+                                          n.x() + 0.0, n.y() + 0.0, n.z() + 0.0,
+                                          std::round(m.dense.points[k2].x() / 10) * 10,
+                                          std::round(m.dense.points[k2].y() / 10) * 10,
+                                          std::round(m.dense.points[k2].z() / 10) * 10);
+                            auto& e = pull[key];
+                            e.first += tukey_weight(r, c) * r * n.dot(vh);
+                            e.second += 1;
+                        }
+                        std::printf(
+                            "  slide (model frame) %.3f %.3f %.3f; pulls by face (sum w r n.v, points):\n",
+                            v.x(), v.y(), v.z());
+                        std::vector<std::pair<double, std::string>> order;
+                        for (const auto& [k3, e] : pull) order.push_back({-std::abs(e.first), k3});
+                        std::sort(order.begin(), order.end());
+                        for (std::size_t o2 = 0; o2 < order.size() && o2 < 12; ++o2)
+                            std::printf("    %-40s %+9.3f %6d\n", order[o2].second.c_str(),
+                                        pull[order[o2].second].first, pull[order[o2].second].second);
+                    }
                 }
                 std::printf(
                     "%-30s %-4s %6zu %5s %4.0f/%4.0f  %-34s %s\n",

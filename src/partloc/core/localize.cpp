@@ -18,9 +18,9 @@ namespace partloc {
 
 namespace {
 
-std::string fmt(const char* f, double a, double b = 0) {
-    char buf[160];
-    std::snprintf(buf, sizeof buf, f, a, b);
+std::string fmt(const char* f, double a, double b = 0, double c = 0) {
+    char buf[200];
+    std::snprintf(buf, sizeof buf, f, a, b, c);
     return buf;
 }
 
@@ -252,6 +252,9 @@ FiducialFit judge(const PreparedModel& model, const Eigen::Isometry3d& T_scan_mo
     f.seen_through = v.seen_through + v.crowded;
     f.JtJ = v.JtJ;
     f.JtJ_facing = v.JtJ_facing;
+    f.weakest_holders = v.weakest_holders;
+    f.weakest_observed = v.weakest_observed;
+    f.weakest_against = v.weakest_against;
     f.score = v.coverage * (1.0 - v.violation);
     if (v.inliers < st.min_inliers)
         f.reason = fmt("too few points on the fiducial (%.0f, needs %.0f)", v.inliers, st.min_inliers);
@@ -280,6 +283,16 @@ FiducialFit judge(const PreparedModel& model, const Eigen::Isometry3d& T_scan_mo
 }
 
 }  // namespace
+
+std::string slide_refutation(const FiducialFit& f, const LocalizeSettings& st) {
+    const auto against = static_cast<double>(f.weakest_against);
+    const auto seen = static_cast<double>(f.weakest_observed + f.weakest_against);
+    if (f.weakest_against < st.min_weakest_against || against <= st.max_weakest_against * seen) return "";
+    return fmt(
+        "slides: the scan contradicts the faces that hold its least held direction (%.0f of %.0f of "
+        "their views; at most %.0f%%)",
+        against, seen, 100 * st.max_weakest_against);
+}
 
 FiducialFit evaluate_model(const PreparedScan& scan, const PreparedModel& model,
                            const Eigen::Isometry3d& T_scan_model, const LocalizeSettings& st) {
@@ -392,7 +405,14 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
         // Verify on the points around the refined pose: the fit may have moved by up to the sampling.
         const auto local = points_near(scan, T_ms.inverse() * model.dense.center, radius);
         const Verification v = verify_pose(local, model.dense, T_ms, scan.viewpoint, t.vs);
-        return judge(model, T_ms.inverse(), v, t, st);
+        FiducialFit f = judge(model, T_ms.inverse(), v, t, st);
+        // A fit's own optimum, not a pose others set (evaluate_model): one slid along its least held
+        // direction onto the clutter beside it is refuted by the faces that hold that direction.
+        if (f.valid) {
+            f.reason = slide_refutation(f, st);
+            f.valid = f.reason.empty();
+        }
+        return f;
     };
     // A fit is a true optimum only if it is one along the direction its data hold least (issue 25: fits
     // slid 1.2-3.6 mm along a narrow face's normal, rotation right, passed every check). From the fit moved

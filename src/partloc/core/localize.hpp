@@ -102,6 +102,9 @@ struct FiducialFit {
     /// Sum of J J^T over the inliers in the fiducial frame, J = [p x n; n]; information = JtJ / noise^2.
     Matrix6d JtJ = Matrix6d::Zero();
     Matrix6d JtJ_facing = Matrix6d::Zero();  ///< Verification::JtJ_facing (the same frame)
+    double weakest_holders = 0.0;            ///< Verification::weakest_holders
+    std::size_t weakest_observed = 0;        ///< Verification::weakest_observed
+    std::size_t weakest_against = 0;         ///< Verification::weakest_against
 };
 
 struct LocalizeSettings {
@@ -119,6 +122,12 @@ struct LocalizeSettings {
     /// (0: none). A restart that ends within slide_distance samplings and slide_angle_deg is the same pose;
     /// one apart that explains more of the scan (support) replaces the fit, and of the two the better is
     /// rejected ("slides") when the other has slide_tie of its support.
+    /// A fiducial's own fit is rejected ("slides", slide_refutation) when, of the ray bins of the faces that
+    /// hold its least held direction (Verification::weakest_observed), at least min_weakest_against and
+    /// more than max_weakest_against of them contradict it: those faces are not where the fit puts them,
+    /// while the rest of the fiducial, which does not fix that direction, fits.
+    std::size_t min_weakest_against = 5;
+    double max_weakest_against = 0.3;
     int slide_restarts = 2;
     double slide_distance = 0.25;
     double slide_angle_deg = 0.5;
@@ -145,6 +154,11 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
 /// The verification's tolerances for `model` in `scan`: a point is on the surface within 3 noise sigmas and
 /// the model's sampling; ray bins twice the coarser of the model's and the scan's spacing.
 VerifySettings verify_settings(const PreparedScan& scan, const PreparedModel& model);
+
+/// Why a fiducial's own fit is refuted along its least held direction (LocalizeSettings::
+/// min_weakest_against, max_weakest_against), or empty. fit_candidates applies it to every fine fit;
+/// evaluate_model does not: at a pose that other fiducials set, disagreement is the caller's to judge.
+std::string slide_refutation(const FiducialFit& fit, const LocalizeSettings& settings);
 
 /// Judges `model` at a given pose in the scan (no fitting): where another fiducial says it must be.
 FiducialFit evaluate_model(const PreparedScan& scan, const PreparedModel& model,

@@ -40,6 +40,8 @@ void surface_support(const std::vector<Eigen::Vector3d>& pts, const Surface& mod
     double r2 = 0.0;
     Matrix6d Jn = Matrix6d::Zero(), edge_on = Matrix6d::Zero();
     Eigen::Matrix3d N = Eigen::Matrix3d::Zero();
+    std::vector<Vector6d> Js;  // each inlier's Jc, for the share of the weakest direction
+    Js.reserve(pts.size());
     const double reach = std::max(4.0 * model.spacing, 0.05 * model.diameter);
     int knn_idx[6];
     double knn_d2[6];
@@ -88,6 +90,7 @@ void surface_support(const std::vector<Eigen::Vector3d>& pts, const Surface& mod
         Vector6d Jc;
         Jc << (p - model.center).cross(n) / L, n;
         Jn.noalias() += Jc * Jc.transpose();
+        Js.push_back(Jc);
         N.noalias() += n * n.transpose();
     }
     v.JtJ_facing = v.JtJ - edge_on;
@@ -95,6 +98,14 @@ void surface_support(const std::vector<Eigen::Vector3d>& pts, const Surface& mod
         v.rmse = std::sqrt(r2 / v.inliers);
         Eigen::SelfAdjointEigenSolver<Matrix6d> es(Jn / static_cast<double>(v.inliers));
         v.conditioning = std::max(0.0, es.eigenvalues()(0));
+        v.weakest = es.eigenvectors().col(0);
+        double sum = 0.0, sum2 = 0.0;
+        for (const Vector6d& J : Js) {
+            const double c = J.dot(v.weakest) * J.dot(v.weakest);
+            sum += c;
+            sum2 += c * c;
+        }
+        v.weakest_holders = sum2 > 0.0 ? sum * sum / sum2 : 0.0;
         Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> en(N / static_cast<double>(v.inliers));
         v.spread = std::max(0.0, en.eigenvalues()(0));
     }
@@ -161,8 +172,25 @@ bool ray_bins(const std::vector<Eigen::Vector3d>& pts, const Surface& model, con
         }
         return true;
     };
+    // The bins whose sample holds the weakest direction: |Jc . weakest| at least this share of the most any
+    // unit normal could give it.
+    const double L = std::max(model.diameter / 2.0, 1e-12);
+    const double most = v.weakest.head<3>().norm() + v.weakest.tail<3>().norm();
+    const auto holds = [&](const BinState& b) {
+        Vector6d Jc;
+        const Eigen::Vector3d& q = model.points[b.sample];
+        const Eigen::Vector3d& n = model.normals[b.sample];
+        Jc << (q - model.center).cross(n) / L, n;
+        return std::abs(Jc.dot(v.weakest)) >= s.holding_share * most;
+    };
     for (const auto& [k, b] : bins) {
         if (!b.facing) continue;
+        if (v.weakest.squaredNorm() > 0.0 && holds(b)) {
+            if (b.on)
+                ++v.weakest_observed;
+            else if (interior(k, b) && (b.crowded || (b.behind && !b.front)))
+                ++v.weakest_against;
+        }
         if (b.on)
             ++v.observed;
         else if (!interior(k, b))

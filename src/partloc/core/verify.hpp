@@ -20,6 +20,9 @@ struct VerifySettings {
     double bin_size = 0.0;         ///< ray bins, as a length at the model's distance (job units)
     double facing_cos = 0.26;      ///< model surface within 75 degrees of incidence counts as facing
     double near_fraction = 0.2;    ///< a return this close in front of the model (x diameter) crowds it
+    /// A visible sample holds the fit's weakest direction when |J . weakest| is at least this share of the
+    /// most a sample could give it (Verification::weakest_observed).
+    double holding_share = 0.3;
 };
 
 struct Verification {
@@ -42,6 +45,17 @@ struct Verification {
     /// The same over the inliers the scanner faces (within 75 degrees of incidence, facing_cos): a direction
     /// that only surfaces seen edge-on hold has next to none of JtJ here (least_share).
     Matrix6d JtJ_facing = Matrix6d::Zero();
+    /// The direction the inliers hold least (issue 25, slid fits): the smallest eigenvector of the
+    /// normalised information, as a twist [w d/2, v] about the model's centre.
+    Vector6d weakest = Vector6d::Zero();
+    /// How many inliers hold it: (sum c)^2 / sum c^2 over the inliers' c = (J . weakest)^2, the number of
+    /// equal shares that would give the same sum. A direction that a few points at one edge hold has few.
+    double weakest_holders = 0.0;
+    /// Of the facing ray bins whose visible sample holds the weakest direction (|J . weakest| at least
+    /// holding_share of its largest), how many are observed and how many contradicted (seen through or
+    /// crowded) or missing: the faces that fix that direction seen where the pose puts them, or not.
+    std::size_t weakest_observed = 0;
+    std::size_t weakest_against = 0;
 };
 
 /// Evaluates the pose T_model_scan of `model` against scan points near it. `viewpoint_scan` is the scanner's
