@@ -118,16 +118,16 @@ struct LocalizeSettings {
     /// about 1/3 for Gaussian noise, 0.58 for residuals spread evenly, as a wrong fit's are.
     double max_rmse = 0.5;
     double ambiguity = 0.8;  ///< a distinct pose with this fraction of the best inliers: ambiguous
-    /// Restarts of an accepted fit along its least held direction, 1..slide_restarts samplings each way
-    /// (0: none). A restart that ends within slide_distance samplings and slide_angle_deg is the same pose;
-    /// one apart that explains more of the scan (support) replaces the fit, and of the two the better is
-    /// rejected ("slides") when the other has slide_tie of its support.
     /// A fiducial's own fit is rejected ("slides", slide_refutation) when, of the ray bins of the faces that
     /// hold its least held direction (Verification::weakest_observed), at least min_weakest_against and
     /// more than max_weakest_against of them contradict it: those faces are not where the fit puts them,
     /// while the rest of the fiducial, which does not fix that direction, fits.
     std::size_t min_weakest_against = 5;
     double max_weakest_against = 0.3;
+    /// Restarts of an accepted fit along its least held direction, 1..slide_restarts samplings each way
+    /// (0: none). A restart that ends within slide_distance samplings and slide_angle_deg is the same pose;
+    /// one apart that explains more of the scan (support) replaces the fit, and of the two the better is
+    /// rejected ("slides") when the other has slide_tie of its support.
     int slide_restarts = 2;
     double slide_distance = 0.25;
     double slide_angle_deg = 0.5;
@@ -151,8 +151,9 @@ std::vector<FiducialFit> fit_candidates(const PreparedScan& scan, const Prepared
                                         const LocalizeSettings& settings,
                                         const std::vector<PoseCandidate>& candidates);
 
-/// The verification's tolerances for `model` in `scan`: a point is on the surface within 3 noise sigmas and
-/// the model's sampling; ray bins twice the coarser of the model's and the scan's spacing.
+/// The verification's tolerances for `model` in `scan`: a point is on the surface within
+/// sqrt((3 noise)^2 + spacing^2 / 2), spacing the model's dense samples' (model.dense.spacing, not
+/// PreparedModel::sampling); ray bins twice the coarser of that spacing and the scan's.
 VerifySettings verify_settings(const PreparedScan& scan, const PreparedModel& model);
 
 /// Why a fiducial's own fit is refuted along its least held direction (LocalizeSettings::
