@@ -199,9 +199,9 @@ int main(int argc, char** argv) {
                     const bool near = o.at_centre < 0.5 && o.deg < 0.5;
                     char buf[200];
                     if (best.valid)
-                        std::snprintf(buf, sizeof buf, "%s (%.2f, %.2f deg) holders %.0f weak bins %zu/%zu",
-                                      near ? "right" : "wrong", o.at_centre, o.deg, best.weakest_holders,
-                                      best.weakest_observed, best.weakest_against);
+                        std::snprintf(buf, sizeof buf, "%s (%.2f, %.2f deg) weak bins %zu/%zu",
+                                      near ? "right" : "wrong", o.at_centre, o.deg, best.weakest_observed,
+                                      best.weakest_against);
                     else
                         std::snprintf(buf, sizeof buf, "%s (%.1f, %.1f deg): %s", near ? "near" : "far",
                                       o.at_centre, o.deg, short_reason(best.reason).c_str());
@@ -216,13 +216,12 @@ int main(int argc, char** argv) {
                     const Offset ob = offset(b.T_scan_fiducial, a.T_scan_fiducial, m.dense.center);
                     std::printf(
                         "  from truth: %s %.3f mm %.3f deg, support %.1f (inliers %zu score %.4f "
-                        "cond %.4f holders %.0f weak bins %zu/%zu); run's first: support %.1f "
-                        "(inliers %zu score %.4f cond %.4f holders %.0f weak bins %zu/%zu), "
+                        "cond %.4f weak bins %zu/%zu); run's first: support %.1f "
+                        "(inliers %zu score %.4f cond %.4f weak bins %zu/%zu), "
                         "%.3f mm %.3f deg from it\n",
                         a.valid ? "valid" : "invalid", oa.at_centre, oa.deg, support(a), a.inliers, a.score,
-                        a.conditioning, a.weakest_holders, a.weakest_observed, a.weakest_against, support(b),
-                        b.inliers, b.score, b.conditioning, b.weakest_holders, b.weakest_observed,
-                        b.weakest_against, ob.at_centre, ob.deg);
+                        a.conditioning, a.weakest_observed, a.weakest_against, support(b), b.inliers, b.score,
+                        b.conditioning, b.weakest_observed, b.weakest_against, ob.at_centre, ob.deg);
                     // Which faces pull the fit from the truth towards where it ends: at the truth, each
                     // point's Tukey-weighted residual times its sample normal's share of the slide direction,
                     // summed by the sample's normal (rounded to 0.1).

@@ -252,7 +252,6 @@ FiducialFit judge(const PreparedModel& model, const Eigen::Isometry3d& T_scan_mo
     f.seen_through = v.seen_through + v.crowded;
     f.JtJ = v.JtJ;
     f.JtJ_facing = v.JtJ_facing;
-    f.weakest_holders = v.weakest_holders;
     f.weakest_observed = v.weakest_observed;
     f.weakest_against = v.weakest_against;
     f.score = v.coverage * (1.0 - v.violation);

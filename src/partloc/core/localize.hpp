@@ -102,7 +102,6 @@ struct FiducialFit {
     /// Sum of J J^T over the inliers in the fiducial frame, J = [p x n; n]; information = JtJ / noise^2.
     Matrix6d JtJ = Matrix6d::Zero();
     Matrix6d JtJ_facing = Matrix6d::Zero();  ///< Verification::JtJ_facing (the same frame)
-    double weakest_holders = 0.0;            ///< Verification::weakest_holders
     std::size_t weakest_observed = 0;        ///< Verification::weakest_observed
     std::size_t weakest_against = 0;         ///< Verification::weakest_against
 };

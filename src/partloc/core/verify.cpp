@@ -32,16 +32,21 @@ struct BinState {
     bool on = false, behind = false, crowded = false, front = false;
 };
 
+/// A point's row of the fit's Jacobian about the model's centre, rotations scaled by half its diameter:
+/// [(p - c) x n / (d/2), n], in which the conditioning and the weakest direction are measured.
+Vector6d centred_row(const Eigen::Vector3d& p, const Eigen::Vector3d& n, const Surface& model) {
+    Vector6d J;
+    J << (p - model.center).cross(n) / std::max(model.diameter / 2.0, 1e-12), n;
+    return J;
+}
+
 /// The points on the model's surface: their residuals, and how well they fix the pose (inliers, rmse,
 /// JtJ, conditioning, spread, overflow).
 void surface_support(const std::vector<Eigen::Vector3d>& pts, const Surface& model,
                      const Eigen::Vector3d& eye, const VerifySettings& s, Verification& v) {
-    const double L = std::max(model.diameter / 2.0, 1e-12);
     double r2 = 0.0;
     Matrix6d Jn = Matrix6d::Zero(), edge_on = Matrix6d::Zero();
     Eigen::Matrix3d N = Eigen::Matrix3d::Zero();
-    std::vector<Vector6d> Js;  // each inlier's Jc, for the share of the weakest direction
-    Js.reserve(pts.size());
     const double reach = std::max(4.0 * model.spacing, 0.05 * model.diameter);
     int knn_idx[6];
     double knn_d2[6];
@@ -87,10 +92,8 @@ void surface_support(const std::vector<Eigen::Vector3d>& pts, const Surface& mod
         const double along_n = to_eye.dot(n);
         if (along_n * along_n < s.facing_cos * s.facing_cos * to_eye.squaredNorm())
             edge_on.noalias() += J * J.transpose();
-        Vector6d Jc;
-        Jc << (p - model.center).cross(n) / L, n;
+        const Vector6d Jc = centred_row(p, n, model);
         Jn.noalias() += Jc * Jc.transpose();
-        Js.push_back(Jc);
         N.noalias() += n * n.transpose();
     }
     v.JtJ_facing = v.JtJ - edge_on;
@@ -99,13 +102,6 @@ void surface_support(const std::vector<Eigen::Vector3d>& pts, const Surface& mod
         Eigen::SelfAdjointEigenSolver<Matrix6d> es(Jn / static_cast<double>(v.inliers));
         v.conditioning = std::max(0.0, es.eigenvalues()(0));
         v.weakest = es.eigenvectors().col(0);
-        double sum = 0.0, sum2 = 0.0;
-        for (const Vector6d& J : Js) {
-            const double c = J.dot(v.weakest) * J.dot(v.weakest);
-            sum += c;
-            sum2 += c * c;
-        }
-        v.weakest_holders = sum2 > 0.0 ? sum * sum / sum2 : 0.0;
         Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> en(N / static_cast<double>(v.inliers));
         v.spread = std::max(0.0, en.eigenvalues()(0));
     }
@@ -172,37 +168,32 @@ bool ray_bins(const std::vector<Eigen::Vector3d>& pts, const Surface& model, con
         }
         return true;
     };
-    // The bins whose sample holds the weakest direction: |Jc . weakest| at least this share of the most any
-    // unit normal could give it.
-    const double L = std::max(model.diameter / 2.0, 1e-12);
+    // A bin's sample holds the weakest direction when its row gives it at least holding_share of the most
+    // any unit normal could (none without inliers, where there is no weakest direction).
     const double most = v.weakest.head<3>().norm() + v.weakest.tail<3>().norm();
     const auto holds = [&](const BinState& b) {
-        Vector6d Jc;
-        const Eigen::Vector3d& q = model.points[b.sample];
-        const Eigen::Vector3d& n = model.normals[b.sample];
-        Jc << (q - model.center).cross(n) / L, n;
-        return std::abs(Jc.dot(v.weakest)) >= s.holding_share * most;
+        return most > 0.0 &&
+               std::abs(centred_row(model.points[b.sample], model.normals[b.sample], model).dot(v.weakest)) >=
+                   s.holding_share * most;
     };
     for (const auto& [k, b] : bins) {
         if (!b.facing) continue;
-        if (v.weakest.squaredNorm() > 0.0 && holds(b)) {
-            if (b.on)
-                ++v.weakest_observed;
-            else if (interior(k, b) && (b.crowded || (b.behind && !b.front)))
-                ++v.weakest_against;
-        }
-        if (b.on)
+        if (b.on) {
             ++v.observed;
-        else if (!interior(k, b))
+            v.weakest_observed += holds(b);
+        } else if (!interior(k, b)) {
             ++v.occluded;
-        else if (b.crowded)
+        } else if (b.crowded) {
             ++v.crowded;
-        else if (b.behind && !b.front)
+            v.weakest_against += holds(b);
+        } else if (b.behind && !b.front) {
             ++v.seen_through;
-        else if (b.front)
+            v.weakest_against += holds(b);
+        } else if (b.front) {
             ++v.occluded;
-        else
+        } else {
             ++v.missing;
+        }
     }
     return true;
 }

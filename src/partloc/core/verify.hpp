@@ -48,12 +48,9 @@ struct Verification {
     /// The direction the inliers hold least (issue 25, slid fits): the smallest eigenvector of the
     /// normalised information, as a twist [w d/2, v] about the model's centre.
     Vector6d weakest = Vector6d::Zero();
-    /// How many inliers hold it: (sum c)^2 / sum c^2 over the inliers' c = (J . weakest)^2, the number of
-    /// equal shares that would give the same sum. A direction that a few points at one edge hold has few.
-    double weakest_holders = 0.0;
     /// Of the facing ray bins whose visible sample holds the weakest direction (|J . weakest| at least
     /// holding_share of its largest), how many are observed and how many contradicted (seen through or
-    /// crowded) or missing: the faces that fix that direction seen where the pose puts them, or not.
+    /// crowded): the faces that fix that direction seen where the pose puts them, or not.
     std::size_t weakest_observed = 0;
     std::size_t weakest_against = 0;
 };
