@@ -9,6 +9,7 @@
 //            the truth), "wrong" (a valid one away from it comes first) or the best one's reason.
 // Unlike the generator, this tool links partloc: it asks the library's steps one at a time.
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -48,6 +49,36 @@ Offset offset(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b, const Eige
     return {(a * centre - b * centre).norm(), d.angle() * 180.0 / M_PI};
 }
 
+/// Signed residuals of the points (scan frame) near the model at T_model_scan, within `window` of the
+/// nearest of their four nearest samples' planes: their median and robust sigma (1.4826 MAD about it).
+struct Residuals {
+    std::size_t n = 0;
+    double median = 0.0, sigma = 0.0;
+};
+Residuals residuals_at(const std::vector<Eigen::Vector3d>& pts, const partloc::Surface& model,
+                       const Eigen::Isometry3d& T_model_scan, double window) {
+    std::vector<double> r;
+    for (const auto& p0 : pts) {
+        const Eigen::Vector3d p = T_model_scan * p0;
+        int nn[4];
+        double d2[4];
+        const int found = model.nearest(p, 4, window + model.spacing, nn, d2);
+        double ri = 0.0;
+        if (partloc::nearest_plane(model, p, nullptr, 0.0, nn, found, &ri) < 0 || std::abs(ri) > window)
+            continue;
+        r.push_back(ri);
+    }
+    Residuals out;
+    out.n = r.size();
+    if (r.empty()) return out;
+    std::nth_element(r.begin(), r.begin() + r.size() / 2, r.end());
+    out.median = r[r.size() / 2];
+    for (double& x : r) x = std::abs(x - out.median);
+    std::nth_element(r.begin(), r.begin() + r.size() / 2, r.end());
+    out.sigma = 1.4826 * r[r.size() / 2];
+    return out;
+}
+
 std::string short_reason(const std::string& r) { return r.substr(0, std::min<std::size_t>(r.size(), 60)); }
 
 }  // namespace
@@ -55,21 +86,25 @@ std::string short_reason(const std::string& r) { return r.substr(0, std::min<std
 int main(int argc, char** argv) {
     using namespace partloc;
     std::size_t min_points = 3000;
-    bool verbose = false;
+    bool verbose = false, residuals = false;
     std::string dump;
-    int max_candidates = 0, stride = 0;  // 0: the model's own PPF settings
+    int max_candidates = 0, stride = 0, per_location = 0;  // 0: the model's own PPF settings
     double near_deg = 15.0, near_samplings = 3.0;
     std::vector<std::string> cells;
     for (int i = 1; i < argc; ++i) {
         const std::string a = argv[i];
         if (a == "--max-candidates" && i + 1 < argc)
             max_candidates = std::stoi(argv[++i]);
+        else if (a == "--per-location" && i + 1 < argc)
+            per_location = std::stoi(argv[++i]);
         else if (a == "--stride" && i + 1 < argc)
             stride = std::stoi(argv[++i]);
         else if (a == "--dump" && i + 1 < argc)
             dump = argv[++i];
         else if (a == "--verbose")
             verbose = true;
+        else if (a == "--residuals")
+            residuals = true;
         else if (a == "--min-points" && i + 1 < argc)
             min_points = std::stoul(argv[++i]);
         else if (a == "--near-deg" && i + 1 < argc)
@@ -115,10 +150,11 @@ int main(int argc, char** argv) {
                     T_machine_scan.inverse() * fiducial_at(job.machine, f, scan.axes);
                 // The global fit as the run makes it, or with other settings (--max-candidates, --stride).
                 std::vector<PoseCandidate> cands;
-                if (max_candidates > 0 || stride > 0) {
+                if (max_candidates > 0 || stride > 0 || per_location > 0) {
                     PpfSettings s2 = m.ppf->settings();
                     if (max_candidates > 0) s2.max_candidates = max_candidates;
                     if (stride > 0) s2.reference_stride = stride;
+                    if (per_location > 0) s2.per_location = per_location;
                     const PpfModel other(m.ppf->points(), m.ppf->normals(), s2);
                     cands = ppf_detect(other, ps.coarse_points, ps.coarse_normals);
                 } else {
@@ -186,6 +222,43 @@ int main(int argc, char** argv) {
                     const IcpResult r = icp_point_to_plane(sub, m.dense, T_true.inverse(), fine);
                     const Offset o = offset(r.T_target_source.inverse(), T_true, m.dense.center);
                     std::printf("  fine from truth: %.2f mm %.2f deg\n", o.at_centre, o.deg);
+                }
+                if (residuals) {
+                    // The sensor's error about the model where a right rigid fit puts it (the reference fit;
+                    // the truth where there is none), and where the run's best candidate is: the residuals'
+                    // median and robust sigma within 0.2 and 0.5 samplings, beside the noise partloc assumes,
+                    // and the verification's violation with that noise and with the residuals' sigma.
+                    Eigen::Isometry3d T_ref = T_true;
+                    if (ts->contains("T_machine_scan_reference_fit"))
+                        T_ref = matrix_of(ts->at("T_machine_scan_reference_fit")).inverse() *
+                                fiducial_at(job.machine, f, scan.axes);
+                    std::vector<int> idx;
+                    ps.grid->within(T_ref * m.dense.center, m.dense.diameter / 2.0 + 2.0 * m.sampling, idx);
+                    std::vector<Eigen::Vector3d> local;
+                    for (int j : idx) local.push_back(ps.cloud->points_[j]);
+                    const auto fits0 = fit_candidates(ps, m, st, cands);
+                    const auto show = [&](const char* what, const Eigen::Isometry3d& T_sm) {
+                        const Residuals a = residuals_at(local, m.dense, T_sm.inverse(), 0.2 * m.sampling);
+                        const Residuals b = residuals_at(local, m.dense, T_sm.inverse(), 0.5 * m.sampling);
+                        VerifySettings vs = verify_settings(ps, m);
+                        const Verification v0 = verify_pose(local, m.dense, T_sm.inverse(), ps.viewpoint, vs);
+                        const double se = std::max(scale.noise, a.sigma);
+                        vs.inlier_distance =
+                            std::abs(a.median) +
+                            std::sqrt(9.0 * se * se + 0.5 * m.dense.spacing * m.dense.spacing);
+                        const Verification v1 = verify_pose(local, m.dense, T_sm.inverse(), ps.viewpoint, vs);
+                        const Offset o = offset(T_sm, T_true, m.dense.center);
+                        std::printf(
+                            "  residuals %s (%.2f mm %.2f deg from truth): noise %.3f s %.2f | 0.2s: n %zu "
+                            "med %+.3f sig %.3f | 0.5s: n %zu med %+.3f sig %.3f | viol %.3f -> %.3f "
+                            "overflow %zu -> %zu\n",
+                            what, o.at_centre, o.deg, scale.noise, m.sampling, a.n, a.median, a.sigma, b.n,
+                            b.median, b.sigma, v0.violation, v1.violation, v0.overflow, v1.overflow);
+                    };
+                    show("reference", T_ref);
+                    if (!fits0.empty())
+                        show(fits0.front().valid ? "best(valid)" : "best(refused)",
+                             fits0.front().T_scan_fiducial);
                 }
                 const auto at_truth = fit_candidates(ps, m, st, {PoseCandidate{T_true, 1.0}});
                 std::string truth_says = at_truth.empty() ? "no fit" : at_truth.front().valid ? "ok" : "";
