@@ -22,6 +22,7 @@
 #include "partloc/core/cloud_stats.hpp"
 #include "partloc/core/icp.hpp"
 #include "partloc/core/localize.hpp"
+#include "partloc/core/median.hpp"
 #include "partloc/core/ppf.hpp"
 #include "partloc/core/verify.hpp"
 #include "partloc/io/job_io.hpp"
@@ -70,12 +71,9 @@ Residuals residuals_at(const std::vector<Eigen::Vector3d>& pts, const partloc::S
     }
     Residuals out;
     out.n = r.size();
-    if (r.empty()) return out;
-    std::nth_element(r.begin(), r.begin() + r.size() / 2, r.end());
-    out.median = r[r.size() / 2];
+    out.median = partloc::median_of(r);
     for (double& x : r) x = std::abs(x - out.median);
-    std::nth_element(r.begin(), r.begin() + r.size() / 2, r.end());
-    out.sigma = 1.4826 * r[r.size() / 2];
+    out.sigma = 1.4826 * partloc::median_of(r);
     return out;
 }
 
@@ -166,13 +164,21 @@ int main(int argc, char** argv) {
                     if (o.deg < near_deg && o.at_centre < near_samplings * m.sampling)
                         rank = static_cast<int>(c);
                 }
+                // The scan's points around the fiducial where T (scan <- model) puts it.
+                const auto points_around = [&](const Eigen::Isometry3d& T) {
+                    std::vector<int> near_idx;
+                    ps.grid->within(T * m.dense.center, m.dense.diameter / 2.0 + 2.0 * m.sampling, near_idx);
+                    std::vector<Eigen::Vector3d> out;
+                    for (int j : near_idx) out.push_back(ps.cloud->points_[j]);
+                    return out;
+                };
+                // The fine-fitted candidates, as the run makes them (fit_candidates).
+                const auto fits = fit_candidates(ps, m, st, cands);
                 if (verbose) {
                     // The verification at the true pose itself, bin by bin, with the run's tolerances.
                     const VerifySettings vs = verify_settings(ps, m);
                     std::vector<int> idx;
-                    ps.grid->within(T_true * m.dense.center, m.dense.diameter / 2.0 + 2.0 * m.sampling, idx);
-                    std::vector<Eigen::Vector3d> local;
-                    for (int j : idx) local.push_back(ps.cloud->points_[j]);
+                    const std::vector<Eigen::Vector3d> local = points_around(T_true);
                     const Verification v = verify_pose(local, m.dense, T_true.inverse(), ps.viewpoint, vs);
                     if (!dump.empty()) {
                         // The points near the fiducial and its samples, model frame, for a look by eye.
@@ -232,11 +238,7 @@ int main(int argc, char** argv) {
                     if (ts->contains("T_machine_scan_reference_fit"))
                         T_ref = matrix_of(ts->at("T_machine_scan_reference_fit")).inverse() *
                                 fiducial_at(job.machine, f, scan.axes);
-                    std::vector<int> idx;
-                    ps.grid->within(T_ref * m.dense.center, m.dense.diameter / 2.0 + 2.0 * m.sampling, idx);
-                    std::vector<Eigen::Vector3d> local;
-                    for (int j : idx) local.push_back(ps.cloud->points_[j]);
-                    const auto fits0 = fit_candidates(ps, m, st, cands);
+                    const std::vector<Eigen::Vector3d> local = points_around(T_ref);
                     const auto show = [&](const char* what, const Eigen::Isometry3d& T_sm) {
                         const Residuals a = residuals_at(local, m.dense, T_sm.inverse(), 0.2 * m.sampling);
                         const Residuals b = residuals_at(local, m.dense, T_sm.inverse(), 0.5 * m.sampling);
@@ -256,15 +258,14 @@ int main(int argc, char** argv) {
                             b.median, b.sigma, v0.violation, v1.violation, v0.overflow, v1.overflow);
                     };
                     show("reference", T_ref);
-                    if (!fits0.empty())
-                        show(fits0.front().valid ? "best(valid)" : "best(refused)",
-                             fits0.front().T_scan_fiducial);
+                    if (!fits.empty())
+                        show(fits.front().valid ? "best(valid)" : "best(refused)",
+                             fits.front().T_scan_fiducial);
                 }
                 const auto at_truth = fit_candidates(ps, m, st, {PoseCandidate{T_true, 1.0}});
                 std::string truth_says = at_truth.empty() ? "no fit" : at_truth.front().valid ? "ok" : "";
                 if (!at_truth.empty() && !at_truth.front().valid)
                     truth_says = short_reason(at_truth.front().reason);
-                const auto fits = fit_candidates(ps, m, st, cands);
                 std::string fits_say = "none";
                 if (!fits.empty()) {
                     const FiducialFit& best = fits.front();
